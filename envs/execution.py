@@ -18,9 +18,11 @@ The pipeline (method.md, "Execution and success"):
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import functools
+import io
 import os
 from typing import Callable
 
@@ -91,6 +93,11 @@ class World:
         expected = [f"act_{j}" for j in ARM_JOINTS] + ["act_gripper"]
         if act_names != expected:
             raise ValueError(f"World expects actuators {expected}, the model has {act_names}")
+
+    @functools.cached_property
+    def mjx_model(self):
+        """The model on the JAX device, made on first use."""
+        return _import_mjx().put_model(self.model)
 
     @classmethod
     def from_xml(cls, xml: str, image_size: int = 256) -> "World":
@@ -186,10 +193,11 @@ def controls(p: Plan, q_start: np.ndarray, grip_start: np.ndarray, config: Execu
 
 
 # ----------------------------------------------------------------------------- back-ends
-def rollout_mujoco(model: mujoco.MjModel, scenes: SceneBatch, ctrl: np.ndarray, threads: int | None = None) -> np.ndarray:
+def rollout_mujoco(world: World, scenes: SceneBatch, ctrl: np.ndarray, threads: int | None = None) -> np.ndarray:
     """Native MuJoCo: ``ctrl [E, W, S, nu]`` -> ``qpos [E, W, nq]`` after each waypoint."""
     from mujoco import rollout
 
+    model = world.model
     e, w, s, nu = ctrl.shape
     threads = threads or os.cpu_count() or 1
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -207,9 +215,16 @@ def rollout_mujoco(model: mujoco.MjModel, scenes: SceneBatch, ctrl: np.ndarray, 
     return state[:, s - 1 :: s, 1 : 1 + model.nq]
 
 
-@functools.partial(jax.jit, static_argnames=())
+def _import_mjx():
+    """``mujoco.mjx``, imported quietly: it prints a notice when the optional Warp back-end is absent."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        from mujoco import mjx
+    return mjx
+
+
+@jax.jit
 def _mjx_rollout(mjx_model, qpos, body_pos, body_quat, ctrl):
-    from mujoco import mjx
+    mjx = _import_mjx()
 
     def episode(q0, bp, bq, ctrl_e):
         m = mjx_model.replace(body_pos=bp, body_quat=bq)
@@ -225,30 +240,17 @@ def _mjx_rollout(mjx_model, qpos, body_pos, body_quat, ctrl):
     return jax.vmap(episode)(qpos, body_pos, body_quat, ctrl)
 
 
-def rollout_mjx(model: mujoco.MjModel, scenes: SceneBatch, ctrl: np.ndarray) -> np.ndarray:
+def rollout_mjx(world: World, scenes: SceneBatch, ctrl: np.ndarray) -> np.ndarray:
     """MJX: the same contract as :func:`rollout_mujoco`, batched with ``vmap`` (float32)."""
-    from mujoco import mjx
-
+    model = world.model
     e = ctrl.shape[0]
     body_pos = scenes.body_pos if scenes.body_pos is not None else np.broadcast_to(model.body_pos, (e, *model.body_pos.shape))
     body_quat = scenes.body_quat if scenes.body_quat is not None else np.broadcast_to(model.body_quat, (e, *model.body_quat.shape))
     qs = _mjx_rollout(
-        _mjx_model(model), jnp.asarray(scenes.qpos, jnp.float32), jnp.asarray(body_pos, jnp.float32),
+        world.mjx_model, jnp.asarray(scenes.qpos, jnp.float32), jnp.asarray(body_pos, jnp.float32),
         jnp.asarray(body_quat, jnp.float32), jnp.asarray(ctrl, jnp.float32),
     )
     return np.asarray(qs, np.float64)
-
-
-_MJX_MODELS: dict[int, object] = {}
-
-
-def _mjx_model(model: mujoco.MjModel):
-    from mujoco import mjx
-
-    key = id(model)
-    if key not in _MJX_MODELS:
-        _MJX_MODELS[key] = mjx.put_model(model)
-    return _MJX_MODELS[key]
 
 
 def default_backend() -> str:
@@ -286,9 +288,7 @@ def execute(
     p = plan(world, motions, scenes, config)
     grip_start = scenes.qpos[:, world.model.joint("finger_left").qposadr[0]]
     ctrl = controls(p, scenes.qpos[:, world.chain.qpos_index], grip_start, config)
-    if backend == "mujoco":
-        qpos = rollout_mujoco(world.model, scenes, ctrl)
-    else:
-        qpos = rollout_mjx(world.model, scenes, ctrl)
+    rollout = rollout_mujoco if backend == "mujoco" else rollout_mjx
+    qpos = rollout(world, scenes, ctrl)
     after = np.asarray(success_fn(qpos, scenes), bool) & p.valid
     return ExecutionResult(after.any(axis=1), after, p.reached, p.valid, p.abandoned, qpos)

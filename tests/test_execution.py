@@ -54,7 +54,7 @@ def test_native_rollout_records_qpos_after_each_waypoint():
     scenes = WORLD.default_scenes(1)
     p = plan(WORLD, PICK[None, :6], scenes, config)
     ctrl = controls(p, scenes.qpos[:, WORLD.chain.qpos_index], np.full(1, 0.04), config)
-    recorded = execution.rollout_mujoco(WORLD.model, scenes, ctrl)
+    recorded = execution.rollout_mujoco(WORLD, scenes, ctrl)
     model, data = WORLD.model, mujoco.MjData(WORLD.model)
     data.qpos[:] = scenes.qpos[0]
     mujoco.mj_forward(model, data)

@@ -1,0 +1,46 @@
+"""The world's commands, run as a user runs them."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(*args, check=True):
+    proc = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def test_render_writes_rgb_beside_depth(tmp_path):
+    out = tmp_path / "front.png"
+    proc = _run("bin/render", "--out", str(out), "--size", "64")
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")) == (128, 64)
+    assert "wrote" in proc.stdout
+
+
+def test_render_rejects_missing_directory(tmp_path):
+    proc = _run("bin/render", "--out", str(tmp_path / "nope" / "x.png"), check=False)
+    assert proc.returncode != 0 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_execute_runs_a_motion_file(tmp_path):
+    motion, out = tmp_path / "m.npy", tmp_path / "r.json"
+    _run("bin/execute", "--backend", "mujoco", "--save-motion", str(motion))
+    assert np.load(motion).shape == (101, 11)
+    proc = _run("bin/execute", "--backend", "mujoco", "--motion", str(motion), "--json", str(out))
+    assert json.loads(out.read_text()) == {"success": True, "failed_waypoints": 0, "abandoned": False}
+    assert len([line for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()]) == 101
+
+
+def test_execute_rejects_a_malformed_motion(tmp_path):
+    bad = tmp_path / "bad.npy"
+    np.save(bad, np.zeros((101, 7), np.float32))
+    proc = _run("bin/execute", "--motion", str(bad), check=False)
+    assert proc.returncode != 0 and "[E, T, 11]" in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,19 @@
+"""The nine tasks of the paper (RLBench's), rebuilt in MuJoCo. ``get_task(name)`` builds one."""
+from __future__ import annotations
+
+from envs.tasks.base import Scene, Task
+from envs.tasks.pick_up_cup import PickUpCup
+from envs.tasks.reach_target import ReachTarget
+
+_ALL = (PickUpCup, ReachTarget)
+#: name -> task class, in the paper's column order.
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in _ALL}
+
+
+def get_task(name: str, image_size: int = 256) -> Task:
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; expected one of: {', '.join(TASKS)}")
+    return TASKS[name](image_size)
+
+
+__all__ = ["Scene", "Task", "TASKS", "get_task"]

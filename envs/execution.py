@@ -279,8 +279,10 @@ def execute(
     success_fn: SuccessFn,
     backend: str = "auto",
     config: ExecutionConfig = ExecutionConfig(),
+    threads: int | None = None,
 ) -> ExecutionResult:
-    """Run ``motions [E, W, 11]`` in their ``scenes`` and judge them with ``success_fn``."""
+    """Run ``motions [E, W, 11]`` in their ``scenes`` and judge them with ``success_fn``.
+    ``threads``: native back-end threads (default: one per core)."""
     if backend == "auto":
         backend = default_backend()
     if backend not in BACKENDS:
@@ -288,7 +290,9 @@ def execute(
     p = plan(world, motions, scenes, config)
     grip_start = scenes.qpos[:, world.model.joint("finger_left").qposadr[0]]
     ctrl = controls(p, scenes.qpos[:, world.chain.qpos_index], grip_start, config)
-    rollout = rollout_mujoco if backend == "mujoco" else rollout_mjx
-    qpos = rollout(world, scenes, ctrl)
+    if backend == "mujoco":
+        qpos = rollout_mujoco(world, scenes, ctrl, threads)
+    else:
+        qpos = rollout_mjx(world, scenes, ctrl)
     after = np.asarray(success_fn(qpos, scenes), bool) & p.valid
     return ExecutionResult(after.any(axis=1), after, p.reached, p.valid, p.abandoned, qpos)

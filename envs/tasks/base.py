@@ -173,3 +173,41 @@ class Task(abc.ABC):
             np.abs(local[..., 2]) < 0.035)
         opening = self.finger_opening(qpos)
         return inside & (opening > 0.5 * half_width) & (opening < min(half_width + 0.006, 0.039))
+
+
+class TaskCamera:
+    """Renders a task's scenes from the front camera. It owns a copy of the task's model
+    into which each scene's placements are written before rendering."""
+
+    def __init__(self, task: Task, image_size: int | None = None):
+        import copy
+
+        from envs.camera import SceneRenderer
+
+        self.task = task
+        self.model = copy.copy(task.model)
+        self.data = mujoco.MjData(self.model)
+        self.image_size = image_size or task.world.camera.image_size
+        self._renderer = SceneRenderer(self.model, self.image_size)
+
+    def _set(self, scene: Scene, qpos: np.ndarray | None = None) -> None:
+        self.model.body_pos[:] = scene.body_pos
+        self.model.body_quat[:] = scene.body_quat
+        self.data.qpos[:] = scene.qpos if qpos is None else qpos
+        self.data.qvel[:] = 0
+        mujoco.mj_forward(self.model, self.data)
+
+    def rgbd(self, scene: Scene, qpos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """RGB uint8 ``[S, S, 3]`` and metric depth float32 ``[S, S]`` of the scene (at its
+        start, or at ``qpos``)."""
+        self._set(scene, qpos)
+        return self._renderer.rgbd(self.data)
+
+    def close(self) -> None:
+        self._renderer.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,243 @@
+"""Demonstration datasets: generation (scripted experts), storage, loading.
+
+Layout, one directory per task and split (``DIR/<task>/<split>/``), every array a plain
+``.npy`` file that :func:`load_split` memory-maps:
+
+==============  =========================  ==============================================
+file            dtype, shape               content
+==============  =========================  ==============================================
+``rgb.npy``     uint8 ``[N, S, S, 3]``     first frame of each episode, front camera
+``depth.npy``   float32 ``[N, S, S]``      its metric depth (m, along the optical axis)
+``motions.npy`` float32 ``[N, 101, 11]``   the expert's motion (``dmo_jax.motion`` layout)
+``seeds.npy``   int64 ``[N]``              seed that rebuilds each scene (``task.reset``)
+``meta.json``   JSON                       task, split, counts, image size, camera K and
+                                           pose, generator version, base seed, timing
+==============  =========================  ==============================================
+
+Writing is crash-safe: finished batches go to ``DIR/<task>/.<split>.partial-<key>/``
+(each file written under a temporary name, then renamed), so an interrupted run resumes
+where it stopped; the split appears under its final name only when complete, by one
+rename of a fully written directory. Seeds are tried in a fixed order and successes are
+kept in that order, so a run gives the same bytes however often it was interrupted.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dmo_jax import motion as motion_lib
+
+GENERATOR_VERSION = 1
+SPLITS = ("train", "test")
+_SPLIT_OFFSET = {"train": 0, "test": 5_000_000}
+_SEED_STRIDE = 10_000_000
+FILES = ("rgb.npy", "depth.npy", "motions.npy", "seeds.npy")
+
+
+def episode_seed(base_seed: int, split: str, index: int) -> int:
+    """The seed of the ``index``-th scene tried for ``split``: train and test never share one,
+    and neither do different base seeds."""
+    if not 0 <= index < _SPLIT_OFFSET["test"]:
+        raise ValueError(f"episode index {index} out of range")
+    return base_seed * _SEED_STRIDE + _SPLIT_OFFSET[split] + index
+
+
+@dataclass(frozen=True)
+class Split:
+    """A loaded split; arrays are read-only memory maps."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    motions: np.ndarray
+    seeds: np.ndarray
+    meta: dict
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+
+
+class DatasetError(Exception):
+    """A dataset is missing, incomplete or inconsistent."""
+
+
+def split_dir(root: str | Path, task: str, split: str) -> Path:
+    return Path(root) / task / split
+
+
+def load_split(root: str | Path, task: str, split: str) -> Split:
+    """Memory-map ``root/<task>/<split>``; raise :class:`DatasetError` saying what is wrong."""
+    path = split_dir(root, task, split)
+    meta_path = path / "meta.json"
+    if not meta_path.is_file():
+        raise DatasetError(
+            f"no complete dataset at {path} (meta.json missing); generate it with "
+            f"`bin/generate_data --task {task} --out {root}`"
+        )
+    try:
+        meta = json.loads(meta_path.read_text())
+        arrays = {f: np.load(path / f, mmap_mode="r", allow_pickle=False) for f in FILES}
+    except (OSError, ValueError) as err:
+        raise DatasetError(f"corrupt dataset at {path}: {err}") from err
+    n, s = meta.get("episodes"), meta.get("image_size")
+    expected = {
+        "rgb.npy": ((n, s, s, 3), np.uint8),
+        "depth.npy": ((n, s, s), np.float32),
+        "motions.npy": ((n, motion_lib.NUM_STEPS, motion_lib.POSE_DIM), np.float32),
+        "seeds.npy": ((n,), np.int64),
+    }
+    for f, (shape, dtype) in expected.items():
+        if arrays[f].shape != shape or arrays[f].dtype != dtype:
+            raise DatasetError(
+                f"corrupt dataset at {path}: {f} is {arrays[f].dtype}{list(arrays[f].shape)}, "
+                f"expected {np.dtype(dtype)}{list(shape)}"
+            )
+    if meta.get("task") != task or meta.get("split") != split:
+        raise DatasetError(f"{path} holds {meta.get('task')}/{meta.get('split')}, not {task}/{split}")
+    return Split(arrays["rgb.npy"], arrays["depth.npy"], arrays["motions.npy"], arrays["seeds.npy"], meta)
+
+
+def _atomic_save(path: Path, array: np.ndarray) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.save(f, array, allow_pickle=False)
+        f.flush()
+        os.fsync(f.fileno())
+    tmp.replace(path)
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+class Progress:
+    """A one-line progress bar on stderr (a line per update when not a terminal)."""
+
+    def __init__(self, label: str, total: int):
+        self.label, self.total, self.start = label, total, time.perf_counter()
+        self.tty = sys.stderr.isatty()
+
+    def update(self, done: int, extra: str = "") -> None:
+        elapsed = time.perf_counter() - self.start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else float("nan")
+        width = 24
+        bar = "#" * int(width * done / max(self.total, 1))
+        line = (f"{self.label} [{bar:<{width}}] {done}/{self.total} {rate:.1f}/s "
+                f"ETA {eta:.0f}s {extra}")
+        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.tty:
+            print(file=sys.stderr)
+
+
+def generate_split(
+    task,
+    split: str,
+    episodes: int,
+    root: str | Path,
+    base_seed: int = 0,
+    batch: int = 64,
+    workers: int | None = None,
+    verbose: bool = True,
+) -> Path:
+    """Run ``task``'s expert on successive seeds until ``episodes`` succeed; write the split.
+
+    Returns the split's directory. Skips work already done (a complete split is left as is;
+    an interrupted one resumes).
+    """
+    from envs import execution
+    from envs.tasks.base import TaskCamera
+
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; expected one of {SPLITS}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    final = split_dir(root, task.name, split)
+    if (final / "meta.json").is_file():
+        return final
+    size = task.world.camera.image_size
+    key = hashlib.sha1(json.dumps([GENERATOR_VERSION, task.name, split, episodes, size, base_seed, batch]).encode()).hexdigest()[:10]
+    partial = final.parent / f".{split}.partial-{key}"
+    partial.mkdir(parents=True, exist_ok=True)
+
+    chunks = sorted(partial.glob("chunk_*.npz"))
+    kept = 0
+    for c in chunks:
+        with np.load(c) as z:
+            kept += len(z["seeds"])
+    next_batch = len(chunks)
+    progress = Progress(f"{task.name} {split}", episodes) if verbose else None
+    with TaskCamera(task) as camera:
+        while kept < episodes:
+            if next_batch * batch >= _SPLIT_OFFSET["test"]:
+                raise RuntimeError(f"{task.name}: the expert failed on too many seeds")
+            seeds = [episode_seed(base_seed, split, next_batch * batch + i) for i in range(batch)]
+            scenes = [task.reset(s) for s in seeds]
+            motions = np.stack([task.expert_motion(s) for s in scenes])
+            result = execution.execute(task.world, motions, task.batch(scenes), task.success, "mujoco",
+                                       threads=workers)
+            ok = np.nonzero(result.success)[0][: episodes - kept]
+            images = [camera.rgbd(scenes[i]) for i in ok]
+            chunk = {
+                "rgb": np.stack([im[0] for im in images]) if len(ok) else np.zeros((0, size, size, 3), np.uint8),
+                "depth": np.stack([im[1] for im in images]) if len(ok) else np.zeros((0, size, size), np.float32),
+                "motions": motions[ok],
+                "seeds": np.asarray(seeds, np.int64)[ok],
+                "attempts": np.int64(batch),
+                "successes": np.int64(result.success.sum()),
+            }
+            path = partial / f"chunk_{next_batch:06d}.npz"
+            tmp = partial / f"chunk_{next_batch:06d}.tmp.npz"
+            np.savez(tmp, **chunk)
+            tmp.replace(path)
+            kept += len(ok)
+            next_batch += 1
+            if progress:
+                progress.update(kept, f"(expert success {result.success.mean():.0%} in the last batch)")
+    if progress:
+        progress.close()
+
+    # Assemble the split in a hidden directory, then publish it with one rename.
+    parts = {k: [] for k in ("rgb", "depth", "motions", "seeds")}
+    attempts = successes = 0
+    for c in sorted(partial.glob("chunk_*.npz")):
+        with np.load(c) as z:
+            for k in parts:
+                parts[k].append(z[k])
+            attempts += int(z["attempts"])
+            successes += int(z["successes"])
+    assembling = final.parent / f".{split}.assembling-{key}"
+    shutil.rmtree(assembling, ignore_errors=True)
+    assembling.mkdir(parents=True)
+    for k, arrays in parts.items():
+        _atomic_save(assembling / f"{k}.npy", np.concatenate(arrays)[:episodes])
+    cam = task.world.camera
+    meta = {
+        "task": task.name,
+        "split": split,
+        "episodes": episodes,
+        "image_size": size,
+        "intrinsics": cam.intrinsics.tolist(),
+        "camera_position": cam.position.tolist(),
+        "camera_rotation": cam.rotation.tolist(),
+        "depth": "metric metres along the optical axis",
+        "generator_version": GENERATOR_VERSION,
+        "base_seed": base_seed,
+        "expert_attempts": attempts,
+        "expert_success_rate": successes / attempts,
+    }
+    _atomic_write_text(assembling / "meta.json", json.dumps(meta, indent=2))
+    assembling.replace(final)
+    shutil.rmtree(partial, ignore_errors=True)
+    return final

@@ -16,28 +16,54 @@ def _fail(message: str) -> None:
 
 
 def render_main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Render the front view (RGB beside depth) of the default scene.")
+    parser = argparse.ArgumentParser(
+        description="Render the front view (RGB beside depth) of the default scene, or with --task a "
+        "contact sheet of each task's first training scene.")
     parser.add_argument("--out", required=True, help="PNG file to write")
     parser.add_argument("--size", type=int, default=256, help="image width = height in pixels (default 256)")
+    parser.add_argument("--task", help="a task name, a comma-separated list, or 'all': contact sheet (RGB)")
+    parser.add_argument("--seed", type=int, default=0, help="base seed of the scenes (with --task)")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    if not out.parent.is_dir():
+    if not out.parent.resolve().is_dir():
         _fail(f"output directory {out.parent} does not exist")
     import mujoco
 
     from envs import camera, demo
 
-    world = demo.default_world(args.size)
-    data = mujoco.MjData(world.model)
-    data.qpos[:] = world.home_qpos()
-    mujoco.mj_forward(world.model, data)
     try:
-        with camera.SceneRenderer(world.model, args.size) as renderer:
-            rgb, depth = renderer.rgbd(data)
+        if args.task:
+            image = _contact_sheet(_task_names(args.task), args.size, args.seed)
+            what = f"contact sheet of {args.task}"
+        else:
+            world = demo.default_world(args.size)
+            data = mujoco.MjData(world.model)
+            data.qpos[:] = world.home_qpos()
+            mujoco.mj_forward(world.model, data)
+            with camera.SceneRenderer(world.model, args.size) as renderer:
+                rgb, depth = renderer.rgbd(data)
+            image = np.concatenate([rgb, camera.depth_to_rgb(depth)], axis=1)
+            what = f"RGB | depth {depth.min():.2f}-{depth.max():.2f} m"
     except (ValueError, RuntimeError) as err:
         _fail(str(err))
-    camera.write_png(out, np.concatenate([rgb, camera.depth_to_rgb(depth)], axis=1))
-    print(f"wrote {out} ({args.size}x{args.size} RGB | depth {depth.min():.2f}-{depth.max():.2f} m)")
+    camera.write_png(out, image)
+    print(f"wrote {out} ({what})")
+
+
+def _contact_sheet(names: list[str], size: int, seed: int, columns: int = 3) -> np.ndarray:
+    from envs.dataset import episode_seed
+    from envs.tasks import get_task
+    from envs.tasks.base import TaskCamera
+
+    tiles = []
+    for name in names:
+        task = get_task(name, size)
+        with TaskCamera(task) as cam:
+            tiles.append(cam.rgbd(task.reset(episode_seed(seed, "train", 0)))[0])
+    while len(tiles) % columns:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.concatenate(tiles[i : i + columns], axis=1) for i in range(0, len(tiles), columns)]
+    return np.concatenate(rows, axis=0)
 
 
 def execute_main(argv: list[str] | None = None) -> None:
@@ -158,34 +184,19 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     if args.json and not Path(args.json).resolve().parent.is_dir():
         _fail(f"directory of --json {args.json} does not exist")
 
-    import time
-
     from envs import evaluation
-    from envs.dataset import DatasetError, load_split
-    from envs.tasks import get_task
+    from envs.dataset import DatasetError
 
     results, rates = [], {}
     for name in names:
         try:
-            test = load_split(args.data, name, "test")
-            train = load_split(args.data, name, "train") if args.method == "blind" else None
+            result = evaluation.evaluate_world_method(name, args.method, args.episodes, args.data, args.backend)
         except DatasetError as err:
             _fail(str(err))
-        episodes = min(args.episodes, len(test))
-        task = get_task(name, test.meta["image_size"])
-        scenes = [task.reset(int(s)) for s in test.seeds[:episodes]]
-        start = time.perf_counter()
-        out = evaluation.execute_candidates(
-            task, scenes, evaluation.world_method_candidates(args.method, test, train, episodes), args.backend)
-        seconds = time.perf_counter() - start
-        successes = int(out["success"].sum())
-        rates[name] = successes / episodes
-        results.append({
-            "task": name, "method": args.method, "episodes": episodes, "successes": successes,
-            "success_rate": rates[name], "seconds": round(seconds, 2),
-            "episode_success": out["success"].astype(int).tolist(),
-        })
-        print(f"{name}: {successes}/{episodes} = {rates[name]:.0%} ({seconds:.1f} s)", file=sys.stderr)
+        results.append(result)
+        rates[name] = result["success_rate"]
+        print(f"{name}: {result['successes']}/{result['episodes']} = {rates[name]:.0%} ({result['seconds']:.1f} s)",
+              file=sys.stderr)
     print(evaluation.success_table(rates, args.method))
     if args.json:
         payload = results[0] if len(results) == 1 else {"results": results}
@@ -193,3 +204,25 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         tmp = Path(args.json + ".tmp")
         tmp.write_text(json.dumps(payload, indent=2))
         tmp.replace(args.json)
+
+
+def task_report_main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description="The task-suite table of BENCHMARKS.md: expert and blind success on the native back-end "
+        "and MJX/native agreement, from generated datasets.")
+    parser.add_argument("--task", default="all", help="a task name, a comma-separated list, or 'all'")
+    parser.add_argument("--data", default="data", help="dataset root directory (default ./data)")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--mjx-episodes", type=int, default=20)
+    args = parser.parse_args(argv)
+    _positive("--episodes", args.episodes)
+    _positive("--mjx-episodes", args.mjx_episodes)
+    from envs.dataset import DatasetError
+    from envs.evaluation import task_suite_report
+
+    try:
+        table = task_suite_report(args.data, _task_names(args.task), args.episodes, args.mjx_episodes,
+                                  log=lambda row: print(row, file=sys.stderr))
+    except DatasetError as err:
+        _fail(str(err))
+    print(table)

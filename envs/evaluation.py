@@ -67,6 +67,32 @@ def world_method_candidates(method: str, test: Split, train: Split | None, episo
     raise ValueError(f"unknown method {method!r}; expected one of {WORLD_METHODS}")
 
 
+def evaluate_world_method(name: str, method: str, episodes: int, data_root, backend: str = "auto") -> dict:
+    """Evaluate ``expert`` or ``blind`` on the first ``episodes`` test scenes of task ``name``.
+
+    Returns ``{"task", "method", "episodes", "successes", "success_rate", "seconds",
+    "episode_success"}``; raises ``envs.dataset.DatasetError`` if the data is missing.
+    """
+    import time
+
+    from envs.dataset import load_split
+    from envs.tasks import get_task
+
+    test = load_split(data_root, name, "test")
+    train = load_split(data_root, name, "train") if method == "blind" else None
+    episodes = min(episodes, len(test))
+    task = get_task(name, test.meta["image_size"])
+    scenes = [task.reset(int(s)) for s in test.seeds[:episodes]]
+    start = time.perf_counter()
+    out = execute_candidates(task, scenes, world_method_candidates(method, test, train, episodes), backend)
+    successes = int(out["success"].sum())
+    return {
+        "task": name, "method": method, "episodes": episodes, "successes": successes,
+        "success_rate": successes / episodes, "seconds": round(time.perf_counter() - start, 2),
+        "episode_success": out["success"].astype(int).tolist(),
+    }
+
+
 def success_table(rates: dict[str, float], label: str) -> str:
     """One row in the paper's layout (CB PC PB PK PR PU RT SW TP, then the average)."""
     head = "| method | " + " | ".join(ABBREVIATIONS[t] for t in TASK_ORDER) + " | avg |"
@@ -74,3 +100,23 @@ def success_table(rates: dict[str, float], label: str) -> str:
     cells = [f"{100 * rates[t]:.0f}" if t in rates else "–" for t in TASK_ORDER]
     avg = f"{100 * np.mean(list(rates.values())):.1f}" if rates else "–"
     return "\n".join([head, sep, f"| {label} | " + " | ".join(cells) + f" | {avg} |"])
+
+
+def task_suite_report(data_root, tasks, episodes: int = 100, mjx_episodes: int = 20, log=print) -> str:
+    """Markdown table per task: expert success (native), blind success (native), and the MJX
+    back-end's agreement with native on the expert's first ``mjx_episodes`` episodes."""
+    rows = ["| task | expert (native) | blind (native) | MJX agrees with native | expert on MJX |",
+            "|---|---|---|---|---|"]
+    for name in tasks:
+        expert = evaluate_world_method(name, "expert", episodes, data_root, "mujoco")
+        blind = evaluate_world_method(name, "blind", episodes, data_root, "mujoco")
+        mjx = evaluate_world_method(name, "expert", mjx_episodes, data_root, "mjx")
+        agree = sum(a == b for a, b in zip(mjx["episode_success"], expert["episode_success"]))
+        rows.append(
+            f"| {ABBREVIATIONS.get(name, name)} {name} | {expert['successes']}/{expert['episodes']} "
+            f"({100 * expert['success_rate']:.0f} %) | {blind['successes']}/{blind['episodes']} "
+            f"({100 * blind['success_rate']:.0f} %) | {agree}/{mjx['episodes']} | "
+            f"{mjx['successes']}/{mjx['episodes']} |"
+        )
+        log(rows[-1])
+    return "\n".join(rows)

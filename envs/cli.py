@@ -10,6 +10,11 @@ from pathlib import Path
 import numpy as np
 
 
+def default_data_dir(image_size: int) -> str:
+    """Datasets of different image sizes live side by side: ``data/<size>px``."""
+    return f"data/{image_size}px"
+
+
 def _fail(message: str) -> None:
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(2)
@@ -135,7 +140,7 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--train", type=int, default=1000, help="training episodes (default 1000)")
     parser.add_argument("--test", type=int, default=100, help="test episodes (default 100)")
-    parser.add_argument("--out", default="data", help="dataset root directory (default ./data)")
+    parser.add_argument("--out", help="dataset root directory (default ./data/<image-size>px)")
     parser.add_argument("--seed", type=int, default=0, help="base seed; train and test seeds never overlap")
     parser.add_argument("--image-size", type=int, default=256, help="image width = height (default 256)")
     parser.add_argument("--workers", type=int, default=None, help="physics threads (default: one per core)")
@@ -145,7 +150,7 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     if args.seed < 0:
         _fail(f"--seed must be non-negative, got {args.seed}")
     names = _task_names(args.task)
-    out = Path(args.out)
+    out = Path(args.out or default_data_dir(args.image_size))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -175,7 +180,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--method", required=True, choices=WORLD_METHODS)
     parser.add_argument("--episodes", type=int, default=100, help="test episodes per task (default 100)")
-    parser.add_argument("--data", default="data", help="dataset root directory (default ./data)")
+    parser.add_argument("--data", default=default_data_dir(256), help="dataset root directory (default ./data/256px)")
     parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"))
     parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args(argv)
@@ -211,7 +216,7 @@ def task_report_main(argv: list[str] | None = None) -> None:
         description="The task-suite table of BENCHMARKS.md: expert and blind success on the native back-end "
         "and MJX/native agreement, from generated datasets.")
     parser.add_argument("--task", default="all", help="a task name, a comma-separated list, or 'all'")
-    parser.add_argument("--data", default="data", help="dataset root directory (default ./data)")
+    parser.add_argument("--data", default=default_data_dir(256), help="dataset root directory (default ./data/256px)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--mjx-episodes", type=int, default=20)
     args = parser.parse_args(argv)

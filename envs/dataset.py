@@ -26,14 +26,13 @@ import hashlib
 import json
 import os
 import shutil
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from dmo_jax import motion as motion_lib
+from dmo_jax.progress import Progress
 
 GENERATOR_VERSION = 1
 SPLITS = ("train", "test")
@@ -117,28 +116,6 @@ def _atomic_write_text(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
-
-
-class Progress:
-    """A one-line progress bar on stderr (a line per update when not a terminal)."""
-
-    def __init__(self, label: str, total: int):
-        self.label, self.total, self.start = label, total, time.perf_counter()
-        self.tty = sys.stderr.isatty()
-
-    def update(self, done: int, extra: str = "") -> None:
-        elapsed = time.perf_counter() - self.start
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (self.total - done) / rate if rate > 0 else float("nan")
-        width = 24
-        bar = "#" * int(width * done / max(self.total, 1))
-        line = (f"{self.label} [{bar:<{width}}] {done}/{self.total} {rate:.1f}/s "
-                f"ETA {eta:.0f}s {extra}")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.tty:
-            print(file=sys.stderr)
 
 
 def generate_split(

@@ -3,9 +3,20 @@ from __future__ import annotations
 
 from envs.tasks.base import Scene, Task
 from envs.tasks.pick_up_cup import PickUpCup
+from envs.tasks.put_knife_on_chopping_board import PutKnifeOnChoppingBoard
+from envs.tasks.put_rubbish_in_bin import PutRubbishInBin
+from envs.tasks.put_umbrella_in_umbrella_stand import PutUmbrellaInUmbrellaStand
 from envs.tasks.reach_target import ReachTarget
+from envs.tasks.take_plate_off_colored_dish_rack import TakePlateOffColoredDishRack
 
-_ALL = (PickUpCup, ReachTarget)
+_ALL = (
+    PickUpCup,
+    PutKnifeOnChoppingBoard,
+    PutRubbishInBin,
+    PutUmbrellaInUmbrellaStand,
+    ReachTarget,
+    TakePlateOffColoredDishRack,
+)
 #: name -> task class, in the paper's column order.
 TASKS: dict[str, type[Task]] = {cls.name: cls for cls in _ALL}
 

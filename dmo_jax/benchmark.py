@@ -1,0 +1,381 @@
+"""Encoder-forward benchmark (BENCHMARKS.md) and a plain reference implementation.
+
+``encoder_benchmark`` times one image's forward pass of the ConvNeXt U-Net (median of
+repeated runs after compilation) in several implementations that compute the same
+function from the same parameters:
+
+* ``plain``: the textbook XLA formulation, what a direct Flax port gives
+  (``lax.conv`` for stride = kernel convs, ``lax.conv_transpose`` for the transposed ones,
+  a grouped convolution for the depthwise 7x7, two-pass normalisation);
+* ``fast``: :class:`dmo_jax.encoder.ConvNeXtUNet` as shipped (float32);
+* ``fast, dw=conv``: the same but with the grouped depthwise convolution, isolating the
+  effect of the shifted-sum depthwise conv;
+* ``fast, bf16``: bf16 matrix products / convolutions, with its error against float32.
+
+Throughput is reported as GFLOP/s of XLA's flop count of the ``fast`` computation,
+next to a measured float32 matmul peak of this machine. With ``with_torch`` a
+same-sized PyTorch U-Net is timed in the same rounds (only if torch is installed). All
+implementations and a 2048^3 float32 matmul (the peak) are timed round-robin, so a
+change of load on the machine affects them alike.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import platform
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .config import EncoderConfig, get_preset
+from .encoder import ConvNeXtUNet, gelu
+
+
+# --------------------------------------------------------------------------- timing
+def time_call(fn, *args, repeats: int = 10, warmup: int = 2) -> list[float]:
+    """Wall-clock seconds of ``fn(*args)`` (blocked until ready) for each of ``repeats`` runs."""
+    for _ in range(warmup):
+        jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t)
+    return times
+
+
+def compiled_flops(fn, *args) -> float:
+    analysis = jax.jit(fn).lower(*args).compile().cost_analysis()
+    if isinstance(analysis, (list, tuple)):
+        analysis = analysis[0]
+    return float(analysis["flops"])
+
+
+# --------------------------------------------------------------------------- plain reference
+def plain_encoder_forward(params, image: jnp.ndarray, cfg: EncoderConfig) -> jnp.ndarray:
+    """The encoder of :class:`ConvNeXtUNet` written with plain XLA convolutions.
+
+    Same parameters (``ConvNeXtUNet.init`` tree, without the ``"params"`` level) and
+    same function; ``image [B, H, W, 4] -> F [B, H, W, out_dim]``. Float32, inference.
+    """
+    dn = ("NHWC", "HWIO", "NHWC")
+
+    def conv(x, p, stride, padding, groups=1):
+        k = p["kernel"] if p["kernel"].ndim == 4 else p["kernel"][:, :, None, :]
+        y = jax.lax.conv_general_dilated(x, k, (stride, stride), padding, dimension_numbers=dn,
+                                         feature_group_count=groups)
+        return y + p["bias"]
+
+    def conv_t(x, p, stride):
+        # out[i s + a] = x[i] K[a]: a transposed conv with the spatially flipped kernel.
+        k = p["kernel"][::-1, ::-1]
+        return jax.lax.conv_transpose(x, k, (stride, stride), "VALID", dimension_numbers=dn) + p["bias"]
+
+    def norm(x, p, axes, eps):
+        mean = jnp.mean(x, axis=axes, keepdims=True)
+        var = jnp.mean(jnp.square(x - mean), axis=axes, keepdims=True)
+        return (x - mean) / jnp.sqrt(var + eps) * p["scale"] + p["bias"]
+
+    def block(x, p):
+        y = conv(x, p["dwconv"], 1, "SAME", groups=x.shape[-1])
+        y = norm(y, p["norm"], (-1,), 1e-6)
+        y = gelu(y @ p["pwconv1"]["kernel"] + p["pwconv1"]["bias"])
+        y = y @ p["pwconv2"]["kernel"] + p["pwconv2"]["bias"]
+        return x + y * p["gamma"]
+
+    gn = (1, 2, 3)
+    L = len(cfg.dims)
+    x = gelu(conv(image, params["stem"], 1, "SAME"))
+    skips = []
+    for i in range(L):
+        if i == 0:
+            x = norm(conv(x, params["down0_conv"], 4, "VALID"), params["down0_norm"], gn, 1e-5)
+        else:
+            x = conv(norm(x, params[f"down{i}_norm"], gn, 1e-5), params[f"down{i}_conv"], 2, "VALID")
+        for j in range(cfg.enc_depths[i]):
+            x = block(x, params[f"enc{i}_block{j}"])
+        skips.append(x)
+    for i in reversed(range(L - 1)):
+        x = conv_t(norm(x, params[f"up{i}_norm"], gn, 1e-5), params[f"up{i}_conv"], 2)
+        x = jnp.concatenate([x, skips[i]], axis=-1)
+        x = x @ params[f"dec{i}_fuse"]["kernel"] + params[f"dec{i}_fuse"]["bias"]
+        for j in range(cfg.dec_depths[i]):
+            x = block(x, params[f"dec{i}_block{j}"])
+    return conv_t(x, params["head"], 4)
+
+
+# --------------------------------------------------------------------------- torch
+def _torch_unet(cfg: EncoderConfig, image_size: int):
+    """A same-sized PyTorch U-Net (NCHW, float32, inference) as a function returning the
+    seconds of one forward pass on a ``[1, 4, S, S]`` image (after 2 warm-up runs); None
+    if torch is not installed."""
+    try:
+        import torch
+        from torch import nn
+    except ImportError:
+        return None
+
+    class Block(nn.Module):
+        def __init__(self, c):
+            super().__init__()
+            self.dw = nn.Conv2d(c, c, 7, padding=3, groups=c)
+            self.norm = nn.LayerNorm(c, eps=1e-6)
+            self.fc1, self.fc2 = nn.Linear(c, 4 * c), nn.Linear(4 * c, c)
+            self.gamma = nn.Parameter(torch.full((c,), 1e-6))
+
+        def forward(self, x):
+            y = self.dw(x).permute(0, 2, 3, 1)
+            y = self.gamma * self.fc2(nn.functional.gelu(self.fc1(self.norm(y))))
+            return x + y.permute(0, 3, 1, 2)
+
+    class UNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            d = cfg.dims
+            self.stem = nn.Conv2d(4, d[0], 3, padding=1)
+            self.down = nn.ModuleList(
+                [nn.Sequential(nn.Conv2d(d[0], d[0], 4, 4), nn.GroupNorm(1, d[0]))]
+                + [nn.Sequential(nn.GroupNorm(1, d[i - 1]), nn.Conv2d(d[i - 1], d[i], 2, 2)) for i in range(1, len(d))]
+            )
+            self.enc = nn.ModuleList([nn.Sequential(*[Block(d[i]) for _ in range(n)]) for i, n in enumerate(cfg.enc_depths)])
+            self.up = nn.ModuleList(
+                [nn.Sequential(nn.GroupNorm(1, d[i + 1]), nn.ConvTranspose2d(d[i + 1], d[i], 2, 2)) for i in range(len(d) - 1)]
+            )
+            self.fuse = nn.ModuleList([nn.Conv2d(2 * d[i], d[i], 1) for i in range(len(d) - 1)])
+            self.dec = nn.ModuleList([nn.Sequential(*[Block(d[i]) for _ in range(n)]) for i, n in enumerate(cfg.dec_depths)])
+            self.head = nn.ConvTranspose2d(d[0], cfg.out_dim, 4, 4)
+
+        def forward(self, x):
+            x = nn.functional.gelu(self.stem(x))
+            skips = []
+            for down, enc in zip(self.down, self.enc):
+                x = enc(down(x))
+                skips.append(x)
+            for i in reversed(range(len(self.up))):
+                x = self.dec[i](self.fuse[i](torch.cat([self.up[i](x), skips[i]], 1)))
+            return self.head(x)
+
+    model = UNet().eval()
+    x = torch.rand(1, 4, image_size, image_size)
+
+    @torch.inference_mode()
+    def run() -> float:
+        t = time.perf_counter()
+        model(x)
+        return time.perf_counter() - t
+
+    run(), run()
+    run.info = {"threads": torch.get_num_threads(), "version": torch.__version__}
+    return run
+
+
+# --------------------------------------------------------------------------- benchmark
+def encoder_benchmark(preset: str = "paper", repeats: int = 10, with_torch: bool = False,
+                      implementations: tuple[str, ...] = ("plain", "fast", "fast_dwconv", "fast_bf16")) -> dict:
+    """Time the encoder forward on one ``[1, S, S, 4]`` image; see the module docstring."""
+    p = get_preset(preset)
+    cfg = dataclasses.replace(p.encoder, compute_dtype="float32", dwconv_impl="shift")
+    s = p.image_size
+    image = jax.random.uniform(jax.random.key(1), (1, s, s, 4), jnp.float32)
+    model = ConvNeXtUNet(cfg)
+    params = jax.jit(model.init)(jax.random.key(0), image)
+    # Layer scale 1e-6 makes every block nearly the identity; use O(1) values so that the
+    # accuracy comparison sees every layer.
+    params = jax.tree_util.tree_map_with_path(
+        lambda path, x: jnp.full_like(x, 0.5) if path[-1].key == "gamma" else x, params
+    )
+    fast_flops = compiled_flops(model.apply, params, image)
+
+    def module_fn(c):
+        return jax.jit(ConvNeXtUNet(c).apply)
+
+    fns = {
+        "plain": (jax.jit(lambda prm, x: plain_encoder_forward(prm["params"], x, cfg)), "plain XLA convs (direct port)"),
+        "fast": (module_fn(cfg), "ConvNeXtUNet (default, float32)"),
+        "fast_dwconv": (module_fn(dataclasses.replace(cfg, dwconv_impl="conv")), "ConvNeXtUNet, grouped-conv depthwise"),
+        "fast_bf16": (module_fn(dataclasses.replace(cfg, compute_dtype="bfloat16")), "ConvNeXtUNet, bf16 compute"),
+    }
+    reference = np.asarray(fns["fast"][0](params, image), np.float64)
+    scale = float(np.sqrt(np.mean(reference**2)))
+    rows = {}
+    for name in implementations:
+        fn, label = fns[name]
+        out = np.asarray(fn(params, image), np.float64)  # compiles
+        rows[name] = {"label": label, "rel_rms_error_vs_fast": float(np.sqrt(np.mean((out - reference) ** 2)) / scale)}
+
+    # Round-robin timing: each round runs every implementation once and one matmul, so that
+    # a change of load on the machine hits all of them alike.
+    n = 2048
+    a = jax.random.normal(jax.random.key(2), (n, n), jnp.float32)
+    matmul = jax.jit(jnp.dot)
+    times = {name: [] for name in rows}
+    matmul_times, torch_times = [], []
+    torch_model = _torch_unet(cfg, s) if with_torch else None
+    for _ in range(repeats):
+        for name in rows:
+            times[name] += time_call(fns[name][0], params, image, repeats=1, warmup=1 if not times[name] else 0)
+        matmul_times += time_call(matmul, a, a, repeats=1, warmup=0 if matmul_times else 1)
+        if torch_model is not None:
+            torch_times.append(torch_model())
+    for name, row in rows.items():
+        row["seconds"] = statistics.median(times[name])
+        row["seconds_min"] = min(times[name])
+        row["gflops_per_s"] = fast_flops / row["seconds"] / 1e9
+    peak = 2 * n**3 / statistics.median(matmul_times) / 1e9
+    result = {
+        "preset": preset,
+        "image_size": s,
+        "gflop_per_image": fast_flops / 1e9,
+        "matmul_peak_gflops_f32": peak,
+        "rows": rows,
+        "machine": {
+            "cpu": _cpu_name(),
+            "cores": os.cpu_count(),
+            "loadavg_1min_at_end": os.getloadavg()[0],
+            "jax": jax.__version__,
+            "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "python": platform.python_version(),
+        },
+    }
+    if with_torch:
+        result["torch"] = None if torch_model is None else dict(seconds=statistics.median(torch_times), **torch_model.info)
+    return result
+
+
+def _cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+def format_encoder_benchmark(r: dict) -> str:
+    peak = r["matmul_peak_gflops_f32"]
+    lines = [
+        f"encoder forward, preset {r['preset']!r}, one {r['image_size']}x{r['image_size']} image, "
+        f"{r['gflop_per_image']:.2f} GFLOP (XLA count of the fast path)",
+        f"machine: {r['machine']['cpu']}, {r['machine']['cores']} cores, jax {r['machine']['jax']}, "
+        f"XLA_FLAGS={r['machine']['xla_flags']!r}, load avg {r['machine']['loadavg_1min_at_end']:.2f}",
+        f"float32 matmul peak (2048^3): {peak:.1f} GFLOP/s",
+        f"{'implementation':<40}{'median s':>10}{'GFLOP/s':>10}{'% peak':>8}{'rel RMS err':>13}",
+    ]
+    for row in r["rows"].values():
+        lines.append(
+            f"{row['label']:<40}{row['seconds']:>10.3f}{row['gflops_per_s']:>10.1f}"
+            f"{100 * row['gflops_per_s'] / peak:>7.0f}%{row['rel_rms_error_vs_fast']:>13.1e}"
+        )
+    t = r.get("torch")
+    if "torch" in r:
+        if t is None:
+            lines.append("PyTorch reference: torch not installed")
+        else:
+            lines.append(
+                f"{'PyTorch ' + t['version'] + ' (' + str(t['threads']) + ' threads)':<40}{t['seconds']:>10.3f}"
+                f"{r['gflop_per_image'] / t['seconds']:>10.1f}{100 * r['gflop_per_image'] / t['seconds'] / peak:>7.0f}%"
+            )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- training steps
+def training_step_benchmark(preset, repeats: int = 5) -> dict:
+    """Seconds per optimiser step of the VAE, EBM and DMO at the preset's sizes and batches.
+
+    Synthetic data and cost-equivalent proxy losses (the real losses belong to the training
+    code): VAE reconstruction MSE + KL; EBM InfoNCE over 1 + gt + VAE negatives per image, the
+    VAE negatives decoded inside the step; DMO ``dmo_train_iters`` refinements from VAE
+    samples with MSE, gradients through the unroll. Adam, train mode (dropout, drop path).
+    ``preset`` is a name or a :class:`~dmo_jax.config.Preset`. Returns per model the median
+    step time, the compile time and the time for the preset's step count.
+    """
+    import optax
+
+    from .networks import DMONet, EBMNet
+    from .vae import VAENet
+
+    p = get_preset(preset) if isinstance(preset, str) else preset
+    tc, s = p.train, p.image_size
+    key = jax.random.key(0)
+    ebm, dmo, vae = EBMNet(p), DMONet(p), VAENet(p.vae)
+    vparams = vae.init(key)
+    opt = optax.adam(tc.lr)
+
+    def motions(k, *shape):
+        return jax.random.uniform(k, shape + (101, 11), minval=-1.0, maxval=1.0)
+
+    def vae_loss(prm, m, k):
+        mu, logvar = vae.encode(prm, m, train=True, rng=k)
+        z = mu + jnp.exp(0.5 * logvar) * jax.random.normal(k, mu.shape)
+        rec = vae.decode(prm, z, train=True, rng=k)
+        kl = -0.5 * jnp.mean(1 + logvar - mu**2 - jnp.exp(logvar))
+        return jnp.mean((rec - m) ** 2) + tc.vae_kl_weight * kl
+
+    def ebm_loss(prm, images, pos, k):
+        b = images.shape[0]
+        neg_gt = pos[jax.random.randint(k, (b, tc.ebm_gt_negatives), 0, b)]
+        neg_vae = vae.sample_around(vparams, pos, k, tc.vae_negative_sigma, tc.ebm_vae_negatives)
+        cands = jnp.concatenate([pos[:, None], neg_gt, jax.lax.stop_gradient(neg_vae)], axis=1)
+        feats = ebm.encode(prm, images, train=True, rng=k)
+        e = jax.vmap(lambda f, c: ebm.energy(prm, f, c, train=True, rng=k))(feats, cands)
+        return jnp.mean(jax.nn.logsumexp(-e, axis=1) + e[:, 0])
+
+    def dmo_loss(prm, images, gt, k):
+        x = jax.lax.stop_gradient(vae.sample_around(vparams, gt, k, tc.dmo_input_sigma))
+        feats = dmo.encode(prm, images, train=True, rng=k)
+        loss = 0.0
+        for _ in range(tc.dmo_train_iters):
+            x = jax.vmap(lambda f, m: dmo.refine(prm, f, m[None], train=True, rng=k)[0])(feats, x)
+            loss = loss + jnp.mean((x - gt) ** 2)
+        return loss / tc.dmo_train_iters
+
+    def make_step(loss_fn):
+        @jax.jit
+        def step(prm, state, *batch):
+            loss, grads = jax.value_and_grad(loss_fn)(prm, *batch)
+            updates, state = opt.update(grads, state, prm)
+            return optax.apply_updates(prm, updates), state, loss
+        return step
+
+    k1, k2, k3 = jax.random.split(key, 3)
+    setups = {
+        "vae": (vae_loss, vparams, (motions(k1, tc.vae_batch), k2), tc.vae_steps),
+        "ebm": (ebm_loss, jax.jit(ebm.init)(k1),
+                (jax.random.uniform(k2, (tc.ebm_batch, s, s, 4)), motions(k3, tc.ebm_batch), k1), tc.ebm_steps),
+        "dmo": (dmo_loss, jax.jit(dmo.init)(k2),
+                (jax.random.uniform(k3, (tc.dmo_batch, s, s, 4)), motions(k1, tc.dmo_batch), k2), tc.dmo_steps),
+    }
+    result = {"preset": p.name, "image_size": s, "models": {}}
+    total = 0.0
+    for name, (loss_fn, prm, batch, steps) in setups.items():
+        step, state = make_step(loss_fn), opt.init(prm)
+        t = time.perf_counter()
+        prm, state, loss = step(prm, state, *batch)
+        jax.block_until_ready(loss)
+        compile_s = time.perf_counter() - t
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            prm, state, loss = step(prm, state, *batch)
+            jax.block_until_ready(loss)
+            times.append(time.perf_counter() - t)
+        sec = statistics.median(times)
+        result["models"][name] = {"step_s": sec, "compile_s": compile_s, "steps": steps, "train_s": sec * steps}
+        total += sec * steps + compile_s
+    result["total_s"] = total
+    result["loadavg_1min_at_end"] = os.getloadavg()[0]
+    return result
+
+
+def format_training_step_benchmark(r: dict) -> str:
+    lines = [f"training steps, preset {r['preset']!r} (image {r['image_size']}px), load avg {r['loadavg_1min_at_end']:.2f}",
+             f"{'model':<6}{'step s':>9}{'compile s':>11}{'steps':>8}{'train s':>10}"]
+    for name, m in r["models"].items():
+        lines.append(f"{name:<6}{m['step_s']:>9.3f}{m['compile_s']:>11.1f}{m['steps']:>8}{m['train_s']:>10.0f}")
+    lines.append(f"total incl. compile: {r['total_s']:.0f} s ({r['total_s'] / 60:.1f} min)")
+    return "\n".join(lines)

@@ -1,0 +1,176 @@
+"""Typed presets: network sizes and training hyper-parameters (method.md).
+
+``get_preset(name)`` returns a frozen :class:`Preset`; ``tiny`` is for tests and CI
+(seconds), ``cpu`` (the default) is sized for this project's 2-core CPU machine, and
+``paper`` matches method.md / the authors' code (EBM 35,866,625 parameters, DMO
+35,883,858, motion VAE 7,772,178 at 256x256).
+
+Variants (paper Table 2) are chosen with ``preset.with_variant(name)`` or
+``get_preset(name, variant=...)``; see :data:`VARIANTS`.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+#: Architecture variants of paper Table 2.
+VARIANTS = ("concat", "wo_concat", "gap", "vit")
+
+
+def check_variant(variant: str) -> str:
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; valid variants: {', '.join(VARIANTS)}")
+    return variant
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """ConvNeXt U-Net (``dmo_jax.encoder.ConvNeXtUNet``)."""
+
+    dims: tuple[int, ...] = (96, 192, 384, 768)
+    enc_depths: tuple[int, ...] = (3, 3, 9, 3)
+    dec_depths: tuple[int, ...] = (3, 3, 3)  # finest level first
+    out_dim: int = 128  # channels of F (= the head's token width)
+    drop_path_rate: float = 0.1
+    layer_scale_init: float = 1e-6
+    dwconv_impl: str = "shift"  # "shift" (fast on XLA:CPU) or "conv"; same result
+    compute_dtype: str = "float32"  # "bfloat16": bf16 matmuls/convs, f32 params and norms
+
+    def __post_init__(self):
+        if len(self.enc_depths) != len(self.dims) or len(self.dec_depths) != len(self.dims) - 1:
+            raise ValueError("EncoderConfig: need len(enc_depths) == len(dims) == len(dec_depths) + 1")
+
+
+@dataclass(frozen=True)
+class HeadConfig:
+    """Pose MLP, feature mix, Transformer and EBM/DMO heads (``dmo_jax.networks``)."""
+
+    variant: str = "concat"
+    width: int = 128  # token width; the pose MLP is width -> 2w -> 2w -> w
+    num_blocks: int = 4
+    num_heads: int = 4
+    dropout: float = 0.1  # pose MLP dropout
+    pre_layernorm: bool = False  # paper-faithful block has no LayerNorm
+    vit_tokens_per_side: int = 16  # ViT variant: F cut into 16 x 16 patches (l = 256)
+
+    def __post_init__(self):
+        check_variant(self.variant)
+        if self.width % self.num_heads:
+            raise ValueError("HeadConfig: width must be divisible by num_heads")
+
+
+@dataclass(frozen=True)
+class VAEConfig:
+    """ACTOR-style motion VAE (``dmo_jax.vae.MotionVAE``)."""
+
+    d_model: int = 256  # also the latent size (ACTOR adds z to a learned bias as the memory)
+    num_layers: int = 4
+    num_heads: int = 4
+    ff_dim: int = 1024
+    dropout: float = 0.1
+    input_hidden: tuple[int, int] = (256, 512)  # input MLP 10 -> 256 -> 512 -> d_model
+
+    @property
+    def latent_dim(self) -> int:
+        return self.d_model
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Training hyper-parameters of method.md ("Training"); used by the training code."""
+
+    lr: float = 1e-4
+    lr_decay: float = 0.99
+    lr_decay_every: int = 5000
+    vae_steps: int = 100_000
+    vae_batch: int = 32
+    vae_kl_weight: float = 0.01
+    ebm_steps: int = 50_000
+    ebm_batch: int = 32
+    ebm_gt_negatives: int = 31  # other images' ground-truth motions
+    ebm_vae_negatives: int = 32  # decoded at z = mu + vae_negative_sigma * sigma * eps
+    vae_negative_sigma: float = 2.0
+    dmo_steps: int = 100_000
+    dmo_batch: int = 16
+    dmo_train_iters: int = 5  # R during training ("Ours-5")
+    dmo_infer_iters: int = 1  # R at prediction
+    dmo_input_sigma: float = 1.0  # DMO input z = mu + 1 sigma eps
+    uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
+    num_candidates: int = 8  # n kept by the EBM at inference
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    image_size: int
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    head: HeadConfig = field(default_factory=HeadConfig)
+    vae: VAEConfig = field(default_factory=VAEConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def __post_init__(self):
+        if self.encoder.out_dim != self.head.width:
+            raise ValueError("Preset: encoder.out_dim must equal head.width (F channels are tokens)")
+        factor = 4 * 2 ** (len(self.encoder.dims) - 1)
+        if self.image_size % factor:
+            raise ValueError(f"Preset: image_size must be divisible by {factor}")
+        if self.image_size % self.head.vit_tokens_per_side:
+            raise ValueError("Preset: image_size must be divisible by head.vit_tokens_per_side")
+
+    @property
+    def variant(self) -> str:
+        return self.head.variant
+
+    def with_variant(self, variant: str) -> "Preset":
+        return dataclasses.replace(self, head=dataclasses.replace(self.head, variant=check_variant(variant)))
+
+    def with_compute_dtype(self, dtype: str) -> "Preset":
+        return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
+
+
+PAPER = Preset(name="paper", image_size=256)
+
+# cpu: PROVISIONAL sizes, not yet validated against the 15-minute budget. Measure with
+# `bin/benchmark --only train-step --preset cpu` on an idle machine. On 2026-11-22, with
+# the machine shared (load average 5-7 on 2 cores), that command gave VAE 2.09 s, EBM 6.39 s,
+# DMO 0.70 s per step, plus 55-126 s to compile each model: far over budget. Those numbers
+# are unreliable under that load; the VAE step in particular is suspect. Re-measure before
+# using this preset.
+# Encoder forward at 64 px: the "shift" depthwise conv takes 0.006 s against 0.018 s for the
+# grouped conv (`bin/benchmark --only encoder --preset cpu`).
+CPU = Preset(
+    name="cpu",
+    image_size=64,
+    encoder=EncoderConfig(dims=(32, 64, 128, 256), enc_depths=(1, 1, 3, 1), dec_depths=(1, 1, 1), out_dim=64),
+    head=HeadConfig(width=64, num_blocks=2, num_heads=4, vit_tokens_per_side=16),
+    vae=VAEConfig(d_model=128, num_layers=2, num_heads=4, ff_dim=256, input_hidden=(128, 256)),
+    train=TrainConfig(
+        vae_steps=1500, vae_batch=32, ebm_steps=1500, ebm_batch=16, dmo_steps=1500, dmo_batch=16,
+        lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
+    ),
+)
+
+TINY = Preset(
+    name="tiny",
+    image_size=32,
+    # "conv" depthwise: at this size compilation, not run time, dominates (shift compiles ~2x slower)
+    encoder=EncoderConfig(dims=(8, 16, 16, 32), enc_depths=(1, 1, 1, 1), dec_depths=(1, 1, 1), out_dim=16,
+                          dwconv_impl="conv"),
+    head=HeadConfig(width=16, num_blocks=1, num_heads=2, vit_tokens_per_side=4),
+    vae=VAEConfig(d_model=32, num_layers=1, num_heads=2, ff_dim=64, input_hidden=(32, 32)),
+    train=TrainConfig(
+        vae_steps=20, vae_batch=8, ebm_steps=20, ebm_batch=4, dmo_steps=20, dmo_batch=4,
+        ebm_gt_negatives=3, ebm_vae_negatives=4, dmo_train_iters=2, num_candidates=4, lr_decay_every=10,
+    ),
+)
+
+PRESETS = {p.name: p for p in (TINY, CPU, PAPER)}
+DEFAULT_PRESET = "cpu"
+
+
+def get_preset(name: str = DEFAULT_PRESET, variant: str | None = None) -> Preset:
+    """The preset called ``name`` (``tiny``, ``cpu``, ``paper``), optionally with another variant."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
+    preset = PRESETS[name]
+    return preset if variant is None else preset.with_variant(variant)

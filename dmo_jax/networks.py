@@ -1,0 +1,334 @@
+"""EBM and DMO networks (method.md, "Networks"; paper Sec. III-C and Table 2).
+
+Both networks = ConvNeXt U-Net encoder (``dmo_jax.encoder``) + a motion head. The encoder
+runs once per image; the head takes ``(F [H, W, C], motions [..., 101, 11])`` for any
+number of candidates and can be ``jax.vmap``-ed over candidates and over images.
+
+Head of variant ``concat`` (the paper's model), per motion:
+
+* pose MLP on each pose p_t: 11 -> w -> 2w -> 2w -> w (GELU + dropout between) -> g_t;
+* spatially-aligned temporal encoding: f_t = bilinear sample of F at uv_t
+  (:func:`bilinear_sample`); c_t = [f_t, g_t] -> MLP 2w -> 2w -> 2w -> w (GELU after each);
+* Transformer over the 101 tokens (:class:`TransformerBlock`, paper-faithful by default);
+* EBM: mean over tokens -> MLP w -> w -> w -> w/2 -> w/2 -> 1 = energy (lower is better);
+* DMO: per token w -> w -> w -> w/2 -> w/2 (GELU), then one head per key
+  (Dense w/2 -> PReLU -> Dense d -> PReLU, as the reference) giving a residual added to
+  the input pose; grasp clamped to [0, 1]; time passed through.
+
+Other variants (tokens into the Transformer): ``wo_concat`` 101 sampled image tokens +
+101 pose tokens; ``gap`` the global average of F + 101 pose tokens; ``vit`` a
+(H/16)x(W/16)-stride patch conv on F giving 16 x 16 = 256 tokens + sinusoidal positions,
++ 101 pose tokens. The EBM averages all tokens; the DMO reads the 101 pose tokens.
+
+Pure API: :class:`EBMNet` / :class:`DMONet` hold only the configuration; parameters go in
+and arrays come out (``init``, ``encode``, ``energy`` / ``refine``).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .config import HeadConfig, Preset, get_preset
+from .encoder import ConvNeXtUNet, PatchConv, gelu
+from .motion import NUM_STEPS, POSE_DIM, POSE_KEYS
+
+Params = Any
+
+
+# --------------------------------------------------------------------------- sampling
+def bilinear_sample(feature: jnp.ndarray, uv: jnp.ndarray) -> jnp.ndarray:
+    """Bilinear sample of ``feature [H, W, C]`` at normalised points ``uv [..., 2]`` -> ``[..., C]``.
+
+    ``uv[..., 0]`` is horizontal (u, width), ``uv[..., 1]`` vertical (v, height), both in
+    [-1, 1] with the align-corners convention: -1 / +1 are the centres of the first / last
+    pixel, pixel ``x = (u + 1) / 2 * (W - 1)``. Taps outside the image count as zeros
+    (torch ``grid_sample(..., padding_mode="zeros", align_corners=True)``). Differentiable
+    in ``feature`` and (piecewise) in ``uv``.
+    """
+    h, w, _ = feature.shape
+    x = (uv[..., 0] + 1.0) * 0.5 * (w - 1)
+    y = (uv[..., 1] + 1.0) * 0.5 * (h - 1)
+    x0 = jnp.floor(x)
+    y0 = jnp.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.astype(jnp.int32)
+    y0 = y0.astype(jnp.int32)
+    out = 0.0
+    for dy, wy in ((0, 1.0 - fy), (1, fy)):
+        for dx, wx in ((0, 1.0 - fx), (1, fx)):
+            xi, yi = x0 + dx, y0 + dy
+            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            tap = feature[jnp.clip(yi, 0, h - 1), jnp.clip(xi, 0, w - 1)]
+            out = out + tap * jnp.where(inside, wx * wy, 0.0)[..., None]
+    return out
+
+
+def sinusoidal_positions(length: int, dim: int) -> np.ndarray:
+    """``[length, dim]`` Transformer positional encoding (sin on even, cos on odd channels)."""
+    pos = np.arange(length, dtype=np.float64)[:, None]
+    div = np.exp(np.arange(0, dim, 2, dtype=np.float64) * (-np.log(10000.0) / dim))
+    pe = np.zeros((length, dim))
+    pe[:, 0::2] = np.sin(pos * div)
+    pe[:, 1::2] = np.cos(pos * div)
+    return pe.astype(np.float32)
+
+
+# --------------------------------------------------------------------------- layers
+class MLP(nn.Module):
+    """Dense layers ``features``; GELU after each (and after the last iff ``final_act``)."""
+
+    features: tuple[int, ...]
+    final_act: bool = True
+    dropout: float = 0.0
+
+    @nn.compact
+    def __call__(self, x, deterministic: bool = True):
+        for i, f in enumerate(self.features):
+            x = nn.Dense(f)(x)
+            if i < len(self.features) - 1 or self.final_act:
+                x = gelu(x)
+                if self.dropout > 0.0 and i < len(self.features) - 1:
+                    x = nn.Dropout(self.dropout)(x, deterministic=deterministic)
+        return x
+
+
+class MultiHeadAttention(nn.Module):
+    """torch.nn.MultiheadAttention: separate q/k/v input projections, scaled dot product, output projection.
+
+    q ``[..., Sq, D]``, kv ``[..., Sk, D]`` (kv = k = v input) -> ``[..., Sq, D]``.
+    """
+
+    num_heads: int
+    dropout: float = 0.0
+
+    @nn.compact
+    def __call__(self, q, k, v, deterministic: bool = True):
+        d = q.shape[-1]
+        hd = d // self.num_heads
+
+        def heads(x, name):
+            return nn.Dense(d, name=name)(x).reshape(x.shape[:-1] + (self.num_heads, hd))
+
+        qh, kh, vh = heads(q, "q_proj"), heads(k, "k_proj"), heads(v, "v_proj")
+        logits = jnp.einsum("...qhd,...khd->...hqk", qh, kh) / np.sqrt(hd)
+        weights = jax.nn.softmax(logits, axis=-1)
+        if self.dropout > 0.0:
+            weights = nn.Dropout(self.dropout)(weights, deterministic=deterministic)
+        out = jnp.einsum("...hqk,...khd->...qhd", weights, vh).reshape(q.shape)
+        return nn.Dense(d, name="out_proj")(out)
+
+
+class TransformerBlock(nn.Module):
+    """The reference block: ``x += MHA(split(GELU(Dense 3w)))``; ``x += FF(x)``, FF = 3 x (Dense w + GELU).
+
+    No LayerNorm and no positional encoding, unless ``pre_layernorm`` (an allowed
+    variant): then LayerNorm is applied before the q/k/v layer and before FF.
+    """
+
+    num_heads: int
+    pre_layernorm: bool = False
+
+    @nn.compact
+    def __call__(self, x, deterministic: bool = True):
+        w = x.shape[-1]
+        y = nn.LayerNorm(name="norm1")(x) if self.pre_layernorm else x
+        qkv = gelu(nn.Dense(3 * w, name="qkv")(y))
+        q, k, v = jnp.split(qkv, 3, axis=-1)
+        x = x + MultiHeadAttention(self.num_heads, name="attn")(q, k, v, deterministic)
+        y = nn.LayerNorm(name="norm2")(x) if self.pre_layernorm else x
+        return x + MLP((w, w, w), final_act=True, name="ff")(y)
+
+
+# --------------------------------------------------------------------------- heads
+class MotionTrunk(nn.Module):
+    """Tokens -> Transformer features, per variant.
+
+    ``feature [H, W, w]``, ``motions [n, 101, 11]`` -> ``(all_tokens [n, S, w], pose_tokens [n, 101, w])``.
+    """
+
+    config: HeadConfig
+
+    @nn.compact
+    def __call__(self, feature, motions, deterministic: bool = True):
+        cfg = self.config
+        w = cfg.width
+        n = motions.shape[0]
+        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(
+            motions, deterministic
+        )
+        if cfg.variant == "concat":
+            f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
+            tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate([f, g], -1))
+            image_tokens = 0
+        elif cfg.variant == "wo_concat":
+            tokens = jnp.concatenate([bilinear_sample(feature, motions[..., POSE_KEYS["uv"]]), g], axis=-2)
+            image_tokens = NUM_STEPS
+        elif cfg.variant == "gap":
+            pooled = jnp.mean(feature, axis=(0, 1))
+            tokens = jnp.concatenate([jnp.broadcast_to(pooled, (n, 1, w)), g], axis=-2)
+            image_tokens = 1
+        elif cfg.variant == "vit":
+            h = feature.shape[0] // cfg.vit_tokens_per_side
+            p = PatchConv(w, h, name="patch")(feature[None])[0].reshape(-1, w)
+            p = p + sinusoidal_positions(p.shape[0], w)
+            tokens = jnp.concatenate([jnp.broadcast_to(p, (n,) + p.shape), g], axis=-2)
+            image_tokens = p.shape[0]
+        else:  # HeadConfig validates the name; this guards future additions
+            raise ValueError(f"unhandled variant {cfg.variant!r}")
+        for i in range(cfg.num_blocks):
+            tokens = TransformerBlock(cfg.num_heads, cfg.pre_layernorm, name=f"block{i}")(tokens, deterministic)
+        return tokens, tokens[:, image_tokens:]
+
+
+def _flatten_motions(motions):
+    if motions.shape[-2:] != (NUM_STEPS, POSE_DIM):
+        raise ValueError(f"motions must be [..., {NUM_STEPS}, {POSE_DIM}], got {motions.shape}")
+    return motions.reshape((-1, NUM_STEPS, POSE_DIM)), motions.shape[:-2]
+
+
+def _check_feature(feature, width):
+    if feature.ndim != 3 or feature.shape[-1] != width:
+        raise ValueError(
+            f"feature must be one image's F [H, W, {width}] (vmap over images), got {feature.shape}"
+        )
+
+
+class EBM(nn.Module):
+    """Energy-based model E(I, P); lower energy = better motion."""
+
+    preset: Preset
+
+    def setup(self):
+        self.encoder = ConvNeXtUNet(self.preset.encoder)
+        self.trunk = MotionTrunk(self.preset.head)
+        w = self.preset.head.width
+        self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
+
+    def encode(self, image, deterministic: bool = True):
+        """``image [..., H, W, 4] -> F [..., H, W, w]``."""
+        return self.encoder(image, deterministic)
+
+    def energy(self, feature, motions, deterministic: bool = True):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]``."""
+        _check_feature(feature, self.preset.head.width)
+        flat, lead = _flatten_motions(motions)
+        tokens, _ = self.trunk(feature, flat, deterministic)
+        return self.energy_mlp(jnp.mean(tokens, axis=-2))[..., 0].reshape(lead)
+
+    def __call__(self, image, motions, deterministic: bool = True):
+        return self.energy(self.encode(image, deterministic), motions, deterministic)
+
+
+class DMOHead(nn.Module):
+    """Per-token features ``[..., 101, w]`` + input motions -> refined motions ``[..., 101, 11]``."""
+
+    width: int
+
+    @nn.compact
+    def __call__(self, tokens, motions):
+        w = self.width
+        h = MLP((w, w, w // 2, w // 2), final_act=True, name="shared_mlp")(tokens)
+        parts = []
+        for key, sl in POSE_KEYS.items():
+            x = motions[..., sl]
+            if key != "time":
+                d = sl.stop - sl.start
+                r = nn.PReLU(negative_slope_init=0.25, name=f"{key}_act0")(nn.Dense(w // 2, name=f"{key}_fc0")(h))
+                r = nn.PReLU(negative_slope_init=0.25, name=f"{key}_act1")(nn.Dense(d, name=f"{key}_fc1")(r))
+                x = x + r
+                if key == "grasp":
+                    x = jnp.clip(x, 0.0, 1.0)
+            parts.append(x)
+        return jnp.concatenate(parts, axis=-1)
+
+
+class DMO(nn.Module):
+    """Deep Motion Optimizer: one residual refinement step of candidate motions."""
+
+    preset: Preset
+
+    def setup(self):
+        self.encoder = ConvNeXtUNet(self.preset.encoder)
+        self.trunk = MotionTrunk(self.preset.head)
+        self.head = DMOHead(self.preset.head.width)
+
+    def encode(self, image, deterministic: bool = True):
+        """``image [..., H, W, 4] -> F [..., H, W, w]``."""
+        return self.encoder(image, deterministic)
+
+    def refine(self, feature, motions, deterministic: bool = True):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> refined motions, same shape."""
+        _check_feature(feature, self.preset.head.width)
+        flat, lead = _flatten_motions(motions)
+        _, pose_tokens = self.trunk(feature, flat, deterministic)
+        return self.head(pose_tokens, flat).reshape(motions.shape)
+
+    def __call__(self, image, motions, deterministic: bool = True):
+        return self.refine(self.encode(image, deterministic), motions, deterministic)
+
+
+# --------------------------------------------------------------------------- pure API
+def _rngs(train: bool, rng):
+    if not train:
+        return {}
+    if rng is None:
+        raise ValueError("train=True needs rng (dropout / drop path)")
+    return {"dropout": rng}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Net:
+    preset: Preset
+
+    @classmethod
+    def from_name(cls, preset: str = "cpu", variant: str | None = None):
+        return cls(get_preset(preset, variant))
+
+    def init(self, rng) -> Params:
+        """Parameters ``{"params": ...}`` for this preset (one dummy image + one motion)."""
+        s = self.preset.image_size
+        image = jnp.zeros((s, s, 4), jnp.float32)
+        motions = jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32)
+        return self.module.init({"params": rng}, image, motions)
+
+    def param_shapes(self) -> Params:
+        """Like :meth:`init` but only shapes (``jax.eval_shape``), nothing computed."""
+        return jax.eval_shape(self.init, jax.random.key(0))
+
+    def encode(self, params, image, *, train: bool = False, rng=None):
+        """``image [..., H, W, 4] float32`` (RGB in [0, 1] + depth) -> ``F [..., H, W, w] float32``."""
+        return self.module.apply(params, image, not train, method="encode", rngs=_rngs(train, rng))
+
+
+class EBMNet(_Net):
+    """Pure EBM: ``encode(params, image) -> F``; ``energy(params, F, motions) -> [...]``."""
+
+    @property
+    def module(self) -> EBM:
+        return EBM(self.preset)
+
+    def energy(self, params, feature, motions, *, train: bool = False, rng=None):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better)."""
+        return self.module.apply(params, feature, motions, not train, method="energy", rngs=_rngs(train, rng))
+
+
+class DMONet(_Net):
+    """Pure DMO: ``encode(params, image) -> F``; ``refine(params, F, motions) -> motions`` (one step)."""
+
+    @property
+    def module(self) -> DMO:
+        return DMO(self.preset)
+
+    def refine(self, params, feature, motions, *, train: bool = False, rng=None):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> refined motions (same shape)."""
+        return self.module.apply(params, feature, motions, not train, method="refine", rngs=_rngs(train, rng))
+
+
+def count_params(params: Params) -> int:
+    """Number of scalars in a parameter tree (arrays or ShapeDtypeStructs)."""
+    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))

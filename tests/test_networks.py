@@ -1,0 +1,228 @@
+"""Networks (issue 4): shapes, F reuse, vmap, sampler, parameter counts, DMO identity, VAE."""
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dmo_jax.benchmark import plain_encoder_forward
+from dmo_jax.config import PRESETS, VARIANTS, get_preset
+from dmo_jax.encoder import ConvNeXtUNet
+from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
+from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
+from dmo_jax.vae import VAENet
+
+
+@functools.lru_cache(maxsize=None)
+def jitted(net):
+    """The net's pure functions, jitted (eager op-by-op execution compiles every op separately)."""
+    names = ("encode", "energy") if isinstance(net, EBMNet) else ("encode", "refine")
+    return [jax.jit(getattr(net, k), static_argnames=("train",)) for k in names]
+
+
+def random_params(net, seed=0):
+    """Random parameters of the right shapes, drawn with numpy.
+
+    XLA:CPU takes 10-25 s to compile a network's ``init`` (one threefry + truncated normal
+    per array), longer than everything else here; the initialiser's structure is covered by
+    ``param_shapes`` (``jax.eval_shape`` of ``init``). Kernels get fan-in-scaled normals,
+    vectors (biases, norm scales, layer scales) O(0.1-1) values, so every layer matters.
+    """
+    rng = np.random.default_rng(seed)
+
+    def draw(x):
+        if len(x.shape) >= 2:
+            return rng.normal(0.0, 1.0 / np.sqrt(np.prod(x.shape[:-1])), x.shape).astype(np.float32)
+        return rng.uniform(0.1, 1.0, x.shape).astype(np.float32)
+
+    return jax.tree.map(lambda x: jnp.asarray(draw(x)), net.param_shapes())
+
+
+def random_motions(key, n):
+    """Plausible motions: uv in the image (some outside), grasp in [0, 1], time grid."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    m = jax.random.uniform(k1, (n, NUM_STEPS, POSE_DIM), minval=-1.1, maxval=1.1)
+    m = m.at[..., 9].set(jax.random.uniform(k2, (n, NUM_STEPS)))
+    m = m.at[..., 2].set(jax.random.uniform(k3, (n, NUM_STEPS), minval=0.3, maxval=1.5))
+    return m.at[..., 10].set(jnp.asarray(time_grid()))
+
+
+@pytest.fixture(scope="module")
+def tiny_ebm():
+    net = EBMNet.from_name("tiny")
+    params = random_params(net, 0)
+    s = net.preset.image_size
+    images = jax.random.uniform(jax.random.key(1), (2, s, s, 4))
+    return net, params, images
+
+
+# --------------------------------------------------------------------------- shapes
+@pytest.mark.parametrize("preset", list(PRESETS))
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_output_shapes(preset, variant):
+    """Abstract evaluation for every preset and variant (nothing big is computed)."""
+    ebm, dmo = EBMNet.from_name(preset, variant), DMONet.from_name(preset, variant)
+    s, w = ebm.preset.image_size, ebm.preset.head.width
+    image = jax.ShapeDtypeStruct((3, s, s, 4), jnp.float32)
+    feature = jax.ShapeDtypeStruct((s, s, w), jnp.float32)
+    motions = jax.ShapeDtypeStruct((5, NUM_STEPS, POSE_DIM), jnp.float32)
+    ep, dp = ebm.param_shapes(), dmo.param_shapes()
+    assert jax.eval_shape(ebm.encode, ep, image).shape == (3, s, s, w)
+    assert jax.eval_shape(ebm.energy, ep, feature, motions).shape == (5,)
+    assert jax.eval_shape(dmo.refine, dp, feature, motions).shape == (5, NUM_STEPS, POSE_DIM)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_tiny_forward_runs_and_is_finite(variant):
+    ebm, dmo = EBMNet.from_name("tiny", variant), DMONet.from_name("tiny", variant)
+    ep, dp = random_params(ebm, 0), random_params(dmo, 1)
+    (_, energy), (_, refine) = jitted(ebm), jitted(dmo)
+    s, w = ebm.preset.image_size, ebm.preset.head.width
+    feature = jax.random.normal(jax.random.key(2), (s, s, w))  # heads only; the encoder is shared
+    motions = random_motions(jax.random.key(3), 3)
+    e = energy(ep, feature, motions)
+    r = refine(dp, feature, motions)
+    assert e.shape == (3,) and r.shape == motions.shape
+    assert np.all(np.isfinite(e)) and np.all(np.isfinite(r))
+    assert not np.allclose(e, e[0]), "different motions should get different energies"
+
+
+def test_paper_parameter_counts():
+    assert count_params(EBMNet.from_name("paper").param_shapes()) == 35_866_625
+    assert count_params(DMONet.from_name("paper").param_shapes()) == 35_883_858
+    assert count_params(VAENet.from_preset("paper").param_shapes()) == 7_772_178
+
+
+# --------------------------------------------------------------------------- reuse / vmap
+def test_energy_with_reused_feature_equals_recomputed(tiny_ebm):
+    net, params, images = tiny_ebm
+    encode, energy = jitted(net)
+    motions = random_motions(jax.random.key(4), 6)
+    feature = encode(params, images[0])
+    reused = np.concatenate([energy(params, feature, motions[:2]), energy(params, feature, motions[2:])])
+    recomputed = jax.jit(net.module.apply)(params, images[0], motions)  # image -> F -> energy in one call
+    np.testing.assert_allclose(reused, recomputed, rtol=1e-5, atol=1e-5)
+
+
+def test_vmapped_heads_equal_per_candidate_calls(tiny_ebm):
+    net, params, images = tiny_ebm
+    dmo = DMONet.from_name("tiny")
+    dparams = random_params(dmo, 5)
+    (encode, energy), (_, refine) = jitted(net), jitted(dmo)
+    motions = random_motions(jax.random.key(6), 4)
+    feature = encode(params, images[0])
+    dfeature = jax.random.normal(jax.random.key(7), feature.shape)
+
+    e_vmap = jax.jit(jax.vmap(lambda m: energy(params, feature, m)))(motions)  # m: [101, 11]
+    e_loop = np.stack([energy(params, feature, motions[i : i + 1])[0] for i in range(4)])
+    np.testing.assert_allclose(e_vmap, e_loop, rtol=1e-5, atol=1e-5)
+
+    r_vmap = jax.jit(jax.vmap(lambda m: refine(dparams, dfeature, m)))(motions)
+    r_loop = np.stack([refine(dparams, dfeature, motions[i : i + 1])[0] for i in range(4)])
+    np.testing.assert_allclose(r_vmap, r_loop, rtol=1e-5, atol=1e-5)
+
+    # over images: batched encoder + vmapped head == one image at a time
+    per_image = jax.jit(jax.vmap(lambda f: energy(params, f, motions)))(encode(params, images))
+    for b in range(images.shape[0]):
+        single = energy(params, encode(params, images[b]), motions)
+        np.testing.assert_allclose(per_image[b], single, rtol=1e-5, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- sampler
+def reference_sample(feature, u, v):
+    """Bilinear sampling as a sum over all pixels of tent weights (align corners, zero outside)."""
+    h, w, _ = feature.shape
+    x = (u + 1) / 2 * (w - 1)
+    y = (v + 1) / 2 * (h - 1)
+    wx = np.maximum(0.0, 1.0 - np.abs(x - np.arange(w)))
+    wy = np.maximum(0.0, 1.0 - np.abs(y - np.arange(h)))
+    return np.einsum("i,j,ijc->c", wy, wx, feature)
+
+
+def test_bilinear_sampler_matches_reference():
+    rng = np.random.default_rng(0)
+    feature = rng.normal(size=(7, 9, 3))
+    pts = list(rng.uniform(-1.3, 1.3, size=(200, 2)))
+    edges = [-1.0, 1.0, -1.0 - 1e-3, 1.0 + 1e-3, 0.0, 3.0, -3.0]
+    pts += [(a, b) for a in edges for b in edges]  # corners, borders, just outside, far outside
+    pts += [(-1.0, rng.uniform(-1, 1)) for _ in range(5)] + [(rng.uniform(-1, 1), 1.0) for _ in range(5)]
+    pts = np.asarray(pts)
+    got = np.asarray(bilinear_sample(jnp.asarray(feature, jnp.float32), jnp.asarray(pts, jnp.float32)))
+    want = np.stack([reference_sample(feature, u, v) for u, v in pts])
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    np.testing.assert_allclose(got[np.abs(pts).max(-1) >= 3.0], 0.0)
+    # exact pixel centres return the pixel
+    np.testing.assert_allclose(got[np.all(pts == [-1.0, -1.0], axis=1)][0], feature[0, 0], atol=1e-6)
+
+
+# --------------------------------------------------------------------------- DMO
+def test_dmo_with_zeroed_final_layers_returns_input():
+    net = DMONet.from_name("tiny")
+    params = random_params(net, 7)
+    _, refine = jitted(net)
+    head = dict(params["params"]["head"])
+    for name in list(head):
+        if name.endswith("_fc1"):
+            head[name] = jax.tree.map(jnp.zeros_like, head[name])
+    zeroed = {"params": {**params["params"], "head": head}}
+    s = net.preset.image_size
+    feature = jax.random.normal(jax.random.key(8), (s, s, net.preset.head.width))
+    motions = random_motions(jax.random.key(9), 3)
+    np.testing.assert_array_equal(refine(zeroed, feature, motions), motions)
+
+    # with the non-zeroed parameters: time passes through, grasp stays in [0, 1]
+    out = refine(params, feature, motions.at[..., 9].set(5.0))
+    np.testing.assert_array_equal(out[..., 10], motions[..., 10])
+    assert np.all((out[..., 9] >= 0) & (out[..., 9] <= 1))
+
+
+# --------------------------------------------------------------------------- encoder
+def test_encoder_fast_ops_equal_plain_convolutions():
+    """Patch convs as matmuls, shifted-sum depthwise conv, one-pass norms == plain XLA convs."""
+    cfg = get_preset("tiny").encoder
+    image = jax.random.uniform(jax.random.key(10), (2, 32, 32, 4))
+    params = {"params": random_params(EBMNet.from_name("tiny"), 11)["params"]["encoder"]}
+    want = jax.jit(plain_encoder_forward, static_argnums=2)(params["params"], image, cfg)
+    for impl in ("shift", "conv"):
+        got = jax.jit(ConvNeXtUNet(dataclasses.replace(cfg, dwconv_impl=impl)).apply)(params, image)
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+
+
+def test_train_mode_needs_rng_and_is_stochastic(tiny_ebm):
+    net, params, images = tiny_ebm
+    encode, energy = jitted(net)
+    motions = random_motions(jax.random.key(12), 2)
+    feature = encode(params, images[0])
+    with pytest.raises(ValueError, match="rng"):
+        energy(params, feature, motions, train=True)
+    a = energy(params, feature, motions, train=True, rng=jax.random.key(1))
+    b = energy(params, feature, motions, train=True, rng=jax.random.key(2))
+    assert not np.allclose(a, b)
+
+
+# --------------------------------------------------------------------------- VAE
+def test_vae_shapes_and_time_channel():
+    vae = VAENet.from_preset("tiny")
+    params = random_params(vae, 13)
+    motions = random_motions(jax.random.key(14), 3)
+    mu, logvar = jax.jit(vae.encode)(params, motions)
+    assert mu.shape == logvar.shape == (3, vae.config.latent_dim)
+    out = jax.jit(vae.decode)(params, mu)
+    assert out.shape == motions.shape
+    np.testing.assert_array_equal(out[..., 10], np.broadcast_to(time_grid(), (3, NUM_STEPS)))
+    sample = jax.jit(vae.sample_around, static_argnames=("num_samples",))
+    samples = sample(params, motions, jax.random.key(15), 2.0, num_samples=4)
+    assert samples.shape == (3, 4, NUM_STEPS, POSE_DIM)
+    assert not np.allclose(samples[:, 0], samples[:, 1])
+    # k_sigma = 0 decodes the posterior mean
+    np.testing.assert_allclose(sample(params, motions, jax.random.key(16), 0.0), out, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- config
+def test_unknown_names_raise_clear_errors():
+    with pytest.raises(ValueError, match="tiny, cpu, paper"):
+        get_preset("huge")
+    with pytest.raises(ValueError, match="concat, wo_concat, gap, vit"):
+        get_preset("tiny", variant="resnet")

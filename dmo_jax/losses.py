@@ -1,0 +1,135 @@
+"""Losses and negative samplers of method.md ("Training"): VAE, EBM InfoNCE, DMO unroll.
+
+All functions are pure and jit-able; ``images [B, S, S, 4]``, ``motions [B, 101, 11]``.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .config import TrainConfig
+from .motion import GRASP, ROT6D, UV, Z, rot6d_to_matrix
+
+NEGATIVE_MODES = ("in-data+vae", "only-vae")
+
+
+def motion_errors(pred: jnp.ndarray, target: jnp.ndarray) -> dict[str, jnp.ndarray]:
+    """Per-key mean squared errors (rotation as Gram–Schmidt matrices), averaged over all axes."""
+    return {
+        "uv": jnp.mean((pred[..., UV] - target[..., UV]) ** 2),
+        "z": jnp.mean((pred[..., Z] - target[..., Z]) ** 2),
+        "rotation": jnp.mean((rot6d_to_matrix(pred[..., ROT6D]) - rot6d_to_matrix(target[..., ROT6D])) ** 2),
+        "grasp": jnp.mean((pred[..., GRASP] - target[..., GRASP]) ** 2),
+    }
+
+
+def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0) -> jnp.ndarray:
+    """MSE(rotation matrices) + uv_weight * MSE(uv) + MSE(z) + MSE(grasp)."""
+    e = motion_errors(pred, target)
+    return e["rotation"] + uv_weight * e["uv"] + e["z"] + e["grasp"]
+
+
+# --------------------------------------------------------------------------- VAE
+def vae_loss(vae, params, motions, key, cfg: TrainConfig):
+    """Reconstruction through a posterior sample + ``vae_kl_weight`` * KL(q(z|x) || N(0, I))."""
+    k_eps, k_drop = jax.random.split(key)
+    mu, logvar = vae.encode(params, motions, train=True, rng=k_drop)
+    z = mu + jnp.exp(0.5 * logvar) * jax.random.normal(k_eps, mu.shape)
+    recon = vae.decode(params, z, train=True, rng=jax.random.fold_in(k_drop, 1))
+    rec = motion_loss(recon, motions, cfg.uv_weight)
+    kl = jnp.mean(jnp.sum(-0.5 * (1 + logvar - mu**2 - jnp.exp(logvar)), axis=-1))
+    return rec + cfg.vae_kl_weight * kl, {"recon": rec, "kl": kl}
+
+
+# --------------------------------------------------------------------------- EBM
+def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: str = "in-data+vae"):
+    """Per image: the positive first, then negatives -> ``[B, 1 + K, 101, 11]``.
+
+    ``in-data+vae``: ``ebm_gt_negatives`` ground-truth motions of *other* images in the batch
+    (with replacement) + ``ebm_vae_negatives`` VAE samples at ``vae_negative_sigma`` decoded
+    from batch motions and shuffled across the batch. ``only-vae``: all K negatives from the
+    VAE (paper Table 4 b).
+    """
+    if negatives not in NEGATIVE_MODES:
+        raise ValueError(f"unknown negatives {negatives!r}; expected one of {NEGATIVE_MODES}")
+    b = motions.shape[0]
+    k_gt, k_vae, k_perm = jax.random.split(key, 3)
+    n_gt = cfg.ebm_gt_negatives if negatives == "in-data+vae" else 0
+    n_vae = cfg.ebm_vae_negatives + (cfg.ebm_gt_negatives - n_gt)
+    parts = [motions[:, None]]
+    if n_gt:
+        if b < 2:
+            raise ValueError("in-data negatives need a batch of at least 2 images")
+        offset = jax.random.randint(k_gt, (b, n_gt), 1, b)  # never 0: never the image's own motion
+        parts.append(motions[(jnp.arange(b)[:, None] + offset) % b])
+    samples = vae.sample_around(vae_params, motions, k_vae, cfg.vae_negative_sigma, num_samples=n_vae)
+    flat = samples.reshape((b * n_vae,) + motions.shape[1:])
+    parts.append(jax.random.permutation(k_perm, flat).reshape((b, n_vae) + motions.shape[1:]))
+    return jax.lax.stop_gradient(jnp.concatenate(parts, axis=1))
+
+
+def ebm_loss(ebm, params, images, candidates, key):
+    """InfoNCE (temperature 1): cross-entropy of softmax(-E) with the positive (index 0) as
+    target. ``candidates [B, 1 + K, 101, 11]``. Metrics: loss, top-1 accuracy."""
+    k_enc, k_head = jax.random.split(key)
+    feature = ebm.encode(params, images, train=True, rng=k_enc)
+    keys = jax.random.split(k_head, images.shape[0])
+    energies = jax.vmap(lambda f, m, k: ebm.energy(params, f, m, train=True, rng=k))(feature, candidates, keys)
+    logp = jax.nn.log_softmax(-energies, axis=-1)
+    accuracy = jnp.mean(jnp.argmin(energies, axis=-1) == 0)
+    return -jnp.mean(logp[:, 0]), {"top1": accuracy}
+
+
+def ebm_eval(ebm, params, images, candidates):
+    """Held-out top-1: fraction of images whose positive has the lowest energy of its candidates."""
+    feature = ebm.encode(params, images)
+    energies = jax.vmap(lambda f, m: ebm.energy(params, f, m))(feature, candidates)
+    return {"top1": jnp.mean(jnp.argmin(energies, axis=-1) == 0)}
+
+
+# --------------------------------------------------------------------------- DMO
+def dmo_unroll(dmo, params, feature, motions, steps: int, train: bool = False, key=None):
+    """Apply the DMO ``steps`` times to ``motions [n, 101, 11]`` reusing one ``F [H, W, C]``;
+    returns every step's output ``[steps, n, 101, 11]``."""
+
+    def body(m, k):
+        out = dmo.refine(params, feature, m, train=train, rng=k if train else None)
+        return out, out
+
+    keys = jax.random.split(key if key is not None else jax.random.key(0), steps)
+    _, outs = jax.lax.scan(body, motions, keys)
+    return outs
+
+
+def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: float = 10.0):
+    """Mean over the ``steps`` unrolled outputs of the motion loss against the clean targets;
+    gradients flow through the whole unroll; F is computed once per image and reused."""
+    k_enc, k_head = jax.random.split(key)
+    feature = dmo.encode(params, images, train=True, rng=k_enc)
+    keys = jax.random.split(k_head, images.shape[0])
+    outs = jax.vmap(lambda f, m, k: dmo_unroll(dmo, params, f, m[None], steps, True, k)[:, 0])(feature, inputs, keys)
+    per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight), in_axes=1)(outs)
+    return jnp.mean(per_step), {"first_step": per_step[0], "last_step": per_step[-1]}
+
+
+def position_error(pred, target, intrinsics, image_size: int) -> jnp.ndarray:
+    """Mean 3-D distance (metres) between the poses' positions, recovered from (uv, z) with K."""
+    from .motion import denormalize_uv, unproject
+
+    def xyz(m):
+        return unproject(denormalize_uv(m[..., UV], image_size), m[..., Z], intrinsics)
+
+    return jnp.mean(jnp.linalg.norm(xyz(pred) - xyz(target), axis=-1))
+
+
+def dmo_eval(dmo, params, images, inputs, targets, steps: int, intrinsics, image_size: int):
+    """Held-out errors before and after ``steps`` refinements: per key (MSE) and the mean
+    3-D position error in metres (``position_before`` / ``position_after``)."""
+    feature = dmo.encode(params, images)
+    outs = jax.vmap(lambda f, m: dmo_unroll(dmo, params, f, m[None], steps)[-1, 0])(feature, inputs)
+    before, after = motion_errors(inputs, targets), motion_errors(outs, targets)
+    before["position"] = position_error(inputs, targets, intrinsics, image_size)
+    after["position"] = position_error(outs, targets, intrinsics, image_size)
+    metrics = {f"{k}_before": v for k, v in before.items()}
+    metrics.update({f"{k}_after": v for k, v in after.items()})
+    return metrics

@@ -1,0 +1,325 @@
+"""Training the motion VAE, the EBM and the DMO (method.md, "Training").
+
+One generic loop (:func:`fit`) runs a jitted pure ``train_step(state, batch, key, extra)``
+for any of the three models: data parallel over all devices (batch sharded on a ``data``
+mesh axis, parameters replicated), orbax checkpoints with automatic resume, a progress
+bar, JSON-lines metrics with held-out evaluations, and a non-finite guard that skips a
+step whose loss or gradients are not finite. Batches and keys are pure functions of
+(seed, step), so a resumed run ends with exactly the parameters of an uninterrupted one.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+from flax import struct
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
+
+from . import losses
+from .config import Preset, TrainConfig
+from .data import MotionDataset, augment_batch
+from .networks import DMONet, EBMNet
+from .progress import Progress
+from .vae import VAENet
+
+MODELS = ("vae", "ebm", "dmo")
+
+
+class TrainingError(Exception):
+    """Training cannot go on (bad checkpoint, too many non-finite steps, bad settings)."""
+
+
+@struct.dataclass
+class TrainState:
+    step: jax.Array
+    params: Any
+    opt_state: Any
+    skipped: jax.Array  # non-finite steps skipped so far
+
+
+def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
+    """Adam at ``cfg.lr``, multiplied by ``cfg.lr_decay`` every ``cfg.lr_decay_every`` steps."""
+    schedule = optax.exponential_decay(cfg.lr, cfg.lr_decay_every, cfg.lr_decay, staircase=True)
+    return optax.adam(schedule)
+
+
+def maybe_initialize_distributed() -> None:
+    """Multi-host training: call ``jax.distributed.initialize`` when ``DMO_COORDINATOR``,
+    ``DMO_NUM_PROCESSES`` and ``DMO_PROCESS_ID`` are set (one process per host)."""
+    if os.environ.get("DMO_COORDINATOR"):
+        jax.distributed.initialize(
+            coordinator_address=os.environ["DMO_COORDINATOR"],
+            num_processes=int(os.environ["DMO_NUM_PROCESSES"]),
+            process_id=int(os.environ["DMO_PROCESS_ID"]),
+        )
+
+
+def data_mesh(devices=None) -> jax.sharding.Mesh:
+    devices = np.asarray(jax.devices() if devices is None else devices)
+    return jax.sharding.Mesh(devices, ("data",))
+
+
+def replicate(mesh: jax.sharding.Mesh, tree):
+    """Put a pytree on every device of ``mesh`` (parameters, optimiser state)."""
+    return jax.device_put(tree, NamedSharding(mesh, P()))
+
+
+def shard_batch(mesh: jax.sharding.Mesh, local: dict[str, np.ndarray]) -> dict[str, jax.Array]:
+    """This process's part of a batch -> global arrays split along ``data`` (leading axis)."""
+    sharding = NamedSharding(mesh, P("data"))
+    return {k: jax.make_array_from_process_local_data(sharding, v) for k, v in local.items()}
+
+
+# --------------------------------------------------------------------------- model specs
+@dataclasses.dataclass(frozen=True)
+class ModelSpec:
+    """What :func:`fit` needs to train one model.
+
+    ``loss_fn(params, batch, key, extra) -> (loss, metrics)``; ``eval_fn(params, extra) ->
+    metrics`` on held-out data (or None); ``init_fn(key) -> params``; ``meta``: what the
+    checkpoint must match to be resumed or loaded.
+    """
+
+    name: str
+    init_fn: Callable
+    loss_fn: Callable
+    eval_fn: Callable | None
+    steps: int
+    batch_size: int
+    meta: dict
+    config: TrainConfig
+
+
+def vae_spec(preset: Preset, heldout: MotionDataset | None = None) -> ModelSpec:
+    net, cfg = VAENet.from_preset(preset), preset.train
+
+    def loss_fn(params, batch, key, extra):
+        return losses.vae_loss(net, params, batch["motions"], key, cfg)
+
+    def eval_fn(params, extra):
+        recon = net.decode(params, net.encode(params, jnp.asarray(heldout.motions))[0])
+        return {f"recon_{k}": v for k, v in losses.motion_errors(recon, jnp.asarray(heldout.motions)).items()}
+
+    return ModelSpec("vae", net.init, loss_fn, eval_fn if heldout is not None else None,
+                     cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
+
+
+def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
+             augment: bool = True) -> ModelSpec:
+    """``extra`` = the trained VAE's parameters (they make the negatives)."""
+    if negatives not in losses.NEGATIVE_MODES:
+        raise ValueError(f"unknown negatives {negatives!r}; expected one of {losses.NEGATIVE_MODES}")
+    net, vae, cfg = EBMNet(preset), VAENet.from_preset(preset), preset.train
+
+    def loss_fn(params, batch, key, vae_params):
+        k_neg, k_aug, k_loss = jax.random.split(key, 3)
+        images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
+        cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives)
+        return losses.ebm_loss(net, params, images, cands, k_loss)
+
+    def eval_fn(params, vae_params):
+        # Held-out candidates: the in-data + VAE mix (the harder, paper setting), fixed key.
+        m = jnp.asarray(heldout.motions)
+        cands = losses.ebm_candidates(vae, vae_params, m, jax.random.key(1234), cfg, "in-data+vae")
+        return jax.jit(lambda p, i, c: losses.ebm_eval(net, p, i, c))(params, jnp.asarray(heldout.images), cands)
+
+    return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
+                     cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
+                                     "negatives": negatives}, cfg)
+
+
+def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionDataset | None = None,
+             heldout_camera: tuple | None = None, augment: bool = True) -> ModelSpec:
+    """``extra`` = the trained VAE's parameters (they make the perturbed inputs)."""
+    net, vae, cfg = DMONet(preset), VAENet.from_preset(preset), preset.train
+    r = cfg.dmo_train_iters if train_iters is None else train_iters
+    if r < 1:
+        raise ValueError(f"the DMO needs at least one training iteration, got {r}")
+
+    def loss_fn(params, batch, key, vae_params):
+        k_in, k_aug, k_loss = jax.random.split(key, 3)
+        images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
+        inputs = jax.lax.stop_gradient(vae.sample_around(vae_params, batch["motions"], k_in, cfg.dmo_input_sigma))
+        return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight)
+
+    def eval_fn(params, vae_params):
+        m = jnp.asarray(heldout.motions)
+        inputs = vae.sample_around(vae_params, m, jax.random.key(4321), cfg.dmo_input_sigma)
+        k, size = heldout_camera
+        return jax.jit(lambda p, i, x, t: losses.dmo_eval(net, p, i, x, t, cfg.dmo_infer_iters, k, size))(
+            params, jnp.asarray(heldout.images), inputs, m)
+
+    return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
+                     cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
+                                     "train_iters": r}, cfg)
+
+
+# --------------------------------------------------------------------------- the loop
+def make_train_step(spec: ModelSpec, tx: optax.GradientTransformation):
+    """The pure step ``(state, batch, key, extra) -> (state, metrics)``; a step whose loss or
+    gradients are not finite leaves parameters and optimiser state unchanged."""
+
+    def train_step(state: TrainState, batch, key, extra):
+        (loss, metrics), grads = jax.value_and_grad(spec.loss_fn, has_aux=True)(state.params, batch, key, extra)
+        finite = jnp.isfinite(loss) & jnp.all(jnp.array([jnp.all(jnp.isfinite(g)) for g in jax.tree.leaves(grads)]))
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(finite, n, o), new, old)
+        state = TrainState(state.step + 1, keep(params, state.params), keep(opt_state, state.opt_state),
+                           state.skipped + (~finite).astype(jnp.int32))
+        return state, {"loss": loss, "finite": finite, **metrics}
+
+    return train_step
+
+
+def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(
+        path.resolve(), options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True),
+        item_names=("state", "meta"),
+    )
+
+
+def _check_meta(saved: dict, expected: dict, path: Path) -> None:
+    diff = {k: (saved.get(k), v) for k, v in expected.items() if saved.get(k) != v}
+    if diff:
+        detail = ", ".join(f"{k}: checkpoint has {a!r}, expected {b!r}" for k, (a, b) in diff.items())
+        raise TrainingError(f"checkpoint at {path} was made with other settings ({detail}); "
+                            "use another --workdir or the matching settings")
+
+
+def load_params(path: str | Path, spec: ModelSpec):
+    """Parameters of the latest checkpoint in ``path`` (checked against ``spec.meta``)."""
+    path = Path(path)
+    mngr = _checkpoint_manager(path, 1)
+    step = mngr.latest_step()
+    if step is None:
+        raise TrainingError(f"no checkpoint in {path}")
+    restored = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+    _check_meta(restored["meta"], spec.meta, path)
+    abstract = jax.eval_shape(spec.init_fn, jax.random.key(0))
+    state = mngr.restore(step, args=ocp.args.Composite(
+        state=ocp.args.PyTreeRestore(item={"params": abstract},
+                                     restore_args=jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), {"params": abstract}),
+                                     partial_restore=True)))
+    return jax.tree.map(jnp.asarray, state["state"]["params"]), restored["meta"]
+
+
+def fit(
+    spec: ModelSpec,
+    dataset: MotionDataset,
+    workdir: str | Path,
+    extra: Any = None,
+    seed: int = 0,
+    log_every: int = 50,
+    eval_every: int | None = None,
+    checkpoint_every: int = 250,
+    keep: int = 3,
+    max_consecutive_skips: int = 20,
+    stop_after: int | None = None,
+    verbose: bool = True,
+    devices=None,
+) -> tuple[Any, dict]:
+    """Train ``spec`` on ``dataset`` in ``workdir`` (resuming any checkpoint there).
+
+    Returns (params, summary). ``stop_after`` ends the run early at that step (after saving),
+    as an interruption would. ``extra``: a pytree passed to every step (the VAE parameters
+    for the EBM and the DMO), replicated on all devices.
+    """
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    mesh = data_mesh(devices)
+    n_dev = mesh.devices.size
+    if spec.batch_size % n_dev:
+        raise TrainingError(f"batch size {spec.batch_size} is not divisible by the {n_dev} devices")
+    tx = make_optimizer(spec.config)
+    meta = {**spec.meta, "steps": spec.steps, "batch_size": spec.batch_size, "seed": seed,
+            "dataset": dataset.statistics()}
+
+    mngr = _checkpoint_manager(workdir / "checkpoints", keep)
+    params = spec.init_fn(jax.random.fold_in(jax.random.key(seed), 0))
+    state = TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
+    latest = mngr.latest_step()
+    if latest is not None:
+        saved_meta = mngr.restore(latest, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+        _check_meta(saved_meta, {k: v for k, v in meta.items() if k != "dataset"}, workdir)
+        restored = mngr.restore(latest, args=ocp.args.Composite(state=ocp.args.StandardRestore(_host(state))))
+        state = jax.tree.map(jnp.asarray, restored["state"])
+    state = replicate(mesh, state)
+    extra = replicate(mesh, extra) if extra is not None else None
+    step_fn = jax.jit(make_train_step(spec, tx), donate_argnums=0)
+    metrics_path = workdir / "metrics.jsonl"
+    _truncate_metrics(metrics_path, int(state.step))
+
+    start = int(state.step)
+    end = spec.steps if stop_after is None else min(stop_after, spec.steps)
+    progress = Progress(f"train {spec.name}", spec.steps, initial=start) if verbose and start < end else None
+    base_key = jax.random.key(seed)
+    t0, consecutive_skips, last = time.perf_counter(), 0, {}
+    for step in range(start, end):
+        local = dataset.batch(seed, step, spec.batch_size // jax.process_count(), jax.process_index())
+        state, metrics = step_fn(state, shard_batch(mesh, local), jax.random.fold_in(base_key, step + 1), extra)
+        done = step + 1
+        consecutive_skips = 0 if bool(metrics["finite"]) else consecutive_skips + 1
+        if consecutive_skips > max_consecutive_skips:
+            raise TrainingError(
+                f"{spec.name}: {consecutive_skips} consecutive steps with non-finite loss or gradients; "
+                f"stopped. Last good checkpoint: step {mngr.latest_step()} in {workdir / 'checkpoints'}")
+        if done % log_every == 0 or done == end:
+            last = {k: float(v) for k, v in metrics.items()}
+            record = {"step": done, **last, "skipped": int(state.skipped), "time": round(time.perf_counter() - t0, 2)}
+            if spec.eval_fn is not None and (done == spec.steps or (eval_every and done % eval_every == 0)):
+                record.update({f"heldout_{k}": float(v) for k, v in spec.eval_fn(state.params, extra).items()})
+            _append_jsonl(metrics_path, record)
+            if progress:
+                progress.update(done, f"loss {last['loss']:.4f}")
+        if done % checkpoint_every == 0 or done == end:
+            mngr.save(done, args=ocp.args.Composite(state=ocp.args.StandardSave(_host(state)),
+                                                    meta=ocp.args.JsonSave(meta)))
+    mngr.wait_until_finished()
+    if progress:
+        progress.close()
+    summary = {"model": spec.name, "steps": int(state.step), "seconds": round(time.perf_counter() - t0, 2),
+               "skipped_steps": int(state.skipped), **_last_heldout(metrics_path)}
+    return jax.device_get(state.params), summary
+
+
+def _host(tree):
+    return jax.device_get(tree)
+
+
+def _append_jsonl(path: Path, record: dict) -> None:
+    with open(path, "a") as f:
+        f.write(json.dumps(record) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _truncate_metrics(path: Path, step: int) -> None:
+    """Drop metric lines written after the checkpoint being resumed (they will be redone)."""
+    if not path.exists():
+        return
+    lines = [l for l in path.read_text().splitlines() if l.strip() and json.loads(l)["step"] <= step]
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(l + "\n" for l in lines))
+    tmp.replace(path)
+
+
+def _last_heldout(path: Path) -> dict:
+    if not path.exists():
+        return {}
+    for line in reversed(path.read_text().splitlines()):
+        record = json.loads(line)
+        heldout = {k: v for k, v in record.items() if k.startswith("heldout_")}
+        if heldout:
+            return heldout
+    return {}

@@ -1,0 +1,78 @@
+"""Per-task pipeline behind ``bin/train_all``: data (generated if missing) -> VAE -> EBM -> DMO.
+
+Work directory layout (``WORKDIR/<task>/<preset>/``)::
+
+    vae/                       checkpoints/, metrics.jsonl   (shared by every variant)
+    <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl
+    <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl
+
+A model whose checkpoint has reached its step count is loaded, not retrained; an
+interrupted one resumes from its last checkpoint.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import training
+from .config import Preset
+from .data import MotionDataset
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPaths:
+    root: Path
+
+    @classmethod
+    def of(cls, workdir, task: str, preset: Preset) -> "RunPaths":
+        return cls(Path(workdir) / task / preset.name)
+
+    def vae(self) -> Path:
+        return self.root / "vae"
+
+    def ebm(self, variant: str, negatives: str) -> Path:
+        return self.root / variant / f"ebm-{negatives}"
+
+    def dmo(self, variant: str, train_iters: int) -> Path:
+        return self.root / variant / f"dmo-R{train_iters}"
+
+
+def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = True, log=print):
+    """Train and held-out datasets of a task at the preset's image size (generated if missing),
+    plus the camera ``(K, image_size)`` they were rendered with."""
+    from envs import dataset as ds
+    from envs.tasks import get_task
+
+    for split, n in (("train", 1000), ("test", 100)):
+        if not (ds.split_dir(data_root, task_name, split) / "meta.json").is_file():
+            if not generate:
+                raise ds.DatasetError(f"no {split} data for {task_name} in {data_root}")
+            log(f"[{task_name}] generating the {split} split ({n} episodes at {preset.image_size}px) in {data_root}")
+            ds.generate_split(get_task(task_name, preset.image_size), split, n, data_root)
+    train, test = ds.load_split(data_root, task_name, "train"), ds.load_split(data_root, task_name, "test")
+    if train.meta["image_size"] != preset.image_size:
+        raise ds.DatasetError(
+            f"{data_root}/{task_name} has {train.meta['image_size']}px images but preset {preset.name!r} "
+            f"needs {preset.image_size}px; use another --data directory")
+    camera = (np.asarray(train.meta["intrinsics"], np.float32), preset.image_size)
+    return MotionDataset.from_split(train), MotionDataset.from_split(test), camera
+
+
+def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: str = "in-data+vae",
+               dmo_train_iters: int | None = None, seed: int = 0, log=print) -> dict:
+    """Train (or load) the VAE, EBM and DMO of one task; returns a summary per model."""
+    train, heldout, camera = load_task_data(task_name, data_root, preset, log=log)
+    paths = RunPaths.of(workdir, task_name, preset)
+    r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
+    summary = {}
+    t0 = time.perf_counter()
+    vae_params, summary["vae"] = training.fit(training.vae_spec(preset, heldout), train, paths.vae(), seed=seed)
+    ebm_spec = training.ebm_spec(preset, negatives, heldout)
+    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset.variant, negatives), extra=vae_params, seed=seed)
+    dmo_spec = training.dmo_spec(preset, r, heldout, camera)
+    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset.variant, r), extra=vae_params, seed=seed)
+    summary["total_seconds"] = round(time.perf_counter() - t0, 1)
+    return summary

@@ -1,0 +1,163 @@
+"""Training: losses decrease, resume is exact, data parallel equals single device, checkpoints
+describe themselves."""
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dmo_jax import data as data_lib
+from dmo_jax import training
+from dmo_jax.config import get_preset
+from envs import dataset
+from envs.tasks import get_task
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = get_preset("tiny")
+
+
+def _fast(preset, steps, **kw):
+    return dataclasses.replace(preset, train=dataclasses.replace(
+        preset.train, lr=1e-3, vae_steps=steps, ebm_steps=steps, dmo_steps=steps, **kw))
+
+
+@pytest.fixture(scope="module")
+def task_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data")
+    task = get_task("reach_target", TINY.image_size)
+    dataset.generate_split(task, "train", 16, root, batch=16, verbose=False)
+    dataset.generate_split(task, "test", 8, root, batch=16, verbose=False)
+    train = data_lib.MotionDataset.from_split(dataset.load_split(root, "reach_target", "train"))
+    test = data_lib.MotionDataset.from_split(dataset.load_split(root, "reach_target", "test"))
+    return train, test, (task.world.camera.intrinsics.astype(np.float32), TINY.image_size)
+
+
+@pytest.fixture(scope="module")
+def vae_params(task_data, tmp_path_factory):
+    params, _ = training.fit(training.vae_spec(_fast(TINY, 30)), task_data[0], tmp_path_factory.mktemp("vae"),
+                             verbose=False)
+    return params
+
+
+def _losses(workdir):
+    return [json.loads(l)["loss"] for l in (Path(workdir) / "metrics.jsonl").read_text().splitlines()]
+
+
+def _decreases(values, k=5):
+    return np.mean(values[-k:]) < 0.9 * np.mean(values[:k])
+
+
+def test_vae_loss_decreases(task_data, tmp_path):
+    training.fit(training.vae_spec(_fast(TINY, 30)), task_data[0], tmp_path, log_every=1, verbose=False)
+    assert _decreases(_losses(tmp_path))
+
+
+def test_ebm_loss_decreases(task_data, vae_params, tmp_path):
+    spec = training.ebm_spec(_fast(TINY, 40), heldout=task_data[1], augment=False)
+    _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
+    assert _decreases(_losses(tmp_path))
+    assert 0.0 <= summary["heldout_top1"] <= 1.0
+
+
+def test_dmo_loss_decreases(task_data, vae_params, tmp_path):
+    spec = training.dmo_spec(_fast(TINY, 30), heldout=task_data[1], heldout_camera=task_data[2], augment=False)
+    _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
+    assert _decreases(_losses(tmp_path))
+    assert summary["heldout_position_before"] > 0
+
+
+def test_resumed_run_ends_with_the_same_parameters(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 12))
+    full, _ = training.fit(spec, task_data[0], tmp_path / "full", checkpoint_every=4, verbose=False)
+    training.fit(spec, task_data[0], tmp_path / "cut", checkpoint_every=4, stop_after=6, verbose=False)
+    resumed, summary = training.fit(spec, task_data[0], tmp_path / "cut", checkpoint_every=4, verbose=False)
+    assert summary["steps"] == 12
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), full, resumed)
+    # Metrics of the resumed run do not repeat steps.
+    steps = [json.loads(l)["step"] for l in (tmp_path / "cut/metrics.jsonl").read_text().splitlines()]
+    assert steps == sorted(set(steps))
+
+
+def test_trained_model_is_loaded_not_retrained(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 4))
+    first, _ = training.fit(spec, task_data[0], tmp_path, verbose=False)
+    again, summary = training.fit(spec, task_data[0], tmp_path, verbose=False)
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), first, again)
+    loaded, meta = training.load_params(tmp_path / "checkpoints", spec)
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), first, loaded)
+    assert meta["preset"] == "tiny" and meta["dataset"]["episodes"] == 16
+
+
+def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
+    training.fit(training.vae_spec(_fast(TINY, 2)), task_data[0], tmp_path, verbose=False)
+    other = training.vae_spec(get_preset("cpu"))
+    with pytest.raises(training.TrainingError, match="preset: checkpoint has 'tiny', expected 'cpu'"):
+        training.load_params(tmp_path / "checkpoints", other)
+    with pytest.raises(training.TrainingError, match="other settings"):
+        training.fit(training.vae_spec(_fast(TINY, 3)), task_data[0], tmp_path, verbose=False)
+
+
+def test_non_finite_steps_are_skipped_then_stop_the_run(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 10))
+    bad = dataclasses.replace(spec, loss_fn=lambda p, b, k, e: (jnp.nan * spec.loss_fn(p, b, k, e)[0], {}))
+    with pytest.raises(training.TrainingError, match="non-finite.*Last good checkpoint"):
+        training.fit(bad, task_data[0], tmp_path, max_consecutive_skips=3, verbose=False)
+
+
+def test_augmentation_changes_rgb_only():
+    img = jax.random.uniform(jax.random.key(0), (6, 32, 32, 4))
+    out = data_lib.augment_batch(img, jax.random.key(1))
+    np.testing.assert_array_equal(out[..., 3], img[..., 3])
+    assert float(out.min()) >= 0.0 and float(out.max()) <= 1.0
+    np.testing.assert_array_equal(out, data_lib.augment_batch(img, jax.random.key(1)))
+
+
+_TWO_DEVICES = r"""
+import sys, json
+sys.path.insert(0, sys.argv[1])
+import envs, jax, optax, numpy as np
+from dmo_jax import training, data as data_lib
+from dmo_jax.config import get_preset
+import dataclasses
+assert jax.device_count() == 2, jax.devices()
+rng = np.random.default_rng(0)
+motions = np.concatenate([rng.uniform(-1, 1, (8, 101, 10)), np.tile(np.linspace(0, 1, 101)[None, :, None], (8, 1, 1))], -1)
+ds = data_lib.MotionDataset(rng.uniform(0, 1, (8, 32, 32, 4)).astype(np.float32), motions.astype(np.float32))
+p = get_preset("tiny")
+p = dataclasses.replace(p, train=dataclasses.replace(p.train, ebm_batch=4))
+vae = training.VAENet.from_preset(p).init(jax.random.key(3))
+spec = training.ebm_spec(p)
+tx = optax.sgd(1e4)  # the update is (a multiple of) the gradient: the comparison is of gradients
+params = spec.init_fn(jax.random.key(0))
+step = jax.jit(training.make_train_step(spec, tx))
+out = {}
+for name, devices in (("one", jax.devices()[:1]), ("two", jax.devices())):
+    mesh = training.data_mesh(devices)
+    state = training.replicate(mesh, training.TrainState(jax.numpy.zeros((), "int32"), params, tx.init(params), jax.numpy.zeros((), "int32")))
+    new, metrics = step(state, training.shard_batch(mesh, ds.batch(0, 0, 4)), jax.random.key(7), training.replicate(mesh, vae))
+    out[name] = (jax.device_get(new.params), float(metrics["loss"]), len(new.params["params"]) and len(jax.tree.leaves(new.params)[0].sharding.device_set))
+grad_one = [(b - a) / 1e4 for a, b in zip(jax.tree.leaves(out["one"][0]), jax.tree.leaves(params))]
+grad_two = [(b - a) / 1e4 for a, b in zip(jax.tree.leaves(out["two"][0]), jax.tree.leaves(params))]
+scale = max(float(np.max(np.abs(g))) for g in grad_one)
+diff = max(float(np.max(np.abs(a - b))) for a, b in zip(grad_one, grad_two))
+print(json.dumps({"loss_one": out["one"][1], "loss_two": out["two"][1], "grad_scale": scale, "grad_diff": diff,
+                  "devices_two": out["two"][2]}))
+"""
+
+
+def test_two_device_step_equals_one_device_step(tmp_path):
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    proc = subprocess.run([sys.executable, "-c", _TWO_DEVICES, str(ROOT)], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert r["devices_two"] == 2  # parameters really live on both devices
+    assert r["loss_two"] == pytest.approx(r["loss_one"], rel=1e-5)
+    assert r["grad_scale"] > 1e-5
+    assert r["grad_diff"] < 1e-3 * r["grad_scale"]

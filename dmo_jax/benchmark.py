@@ -285,88 +285,44 @@ def format_encoder_benchmark(r: dict) -> str:
 
 # --------------------------------------------------------------------------- training steps
 def training_step_benchmark(preset, repeats: int = 5) -> dict:
-    """Seconds per optimiser step of the VAE, EBM and DMO at the preset's sizes and batches.
-
-    Synthetic data and cost-equivalent proxy losses (the real losses belong to the training
-    code): VAE reconstruction MSE + KL; EBM InfoNCE over 1 + gt + VAE negatives per image, the
-    VAE negatives decoded inside the step; DMO ``dmo_train_iters`` refinements from VAE
-    samples with MSE, gradients through the unroll. Adam, train mode (dropout, drop path).
-    ``preset`` is a name or a :class:`~dmo_jax.config.Preset`. Returns per model the median
-    step time, the compile time and the time for the preset's step count.
+    """Seconds per optimiser step of the VAE, EBM and DMO: the real jitted ``train_step`` of
+    :mod:`dmo_jax.training` (losses, negative sampling, augmentation, Adam) at the preset's
+    sizes and batches, on synthetic data. ``preset`` is a name or a
+    :class:`~dmo_jax.config.Preset`. Returns per model the median step time, the compile
+    time and the time for the preset's step count.
     """
-    import optax
-
-    from .networks import DMONet, EBMNet
-    from .vae import VAENet
+    from . import training
+    from .data import MotionDataset
+    from .motion import time_grid
 
     p = get_preset(preset) if isinstance(preset, str) else preset
-    tc, s = p.train, p.image_size
-    key = jax.random.key(0)
-    ebm, dmo, vae = EBMNet(p), DMONet(p), VAENet(p.vae)
-    vparams = vae.init(key)
-    opt = optax.adam(tc.lr)
-
-    def motions(k, *shape):
-        return jax.random.uniform(k, shape + (101, 11), minval=-1.0, maxval=1.0)
-
-    def vae_loss(prm, m, k):
-        mu, logvar = vae.encode(prm, m, train=True, rng=k)
-        z = mu + jnp.exp(0.5 * logvar) * jax.random.normal(k, mu.shape)
-        rec = vae.decode(prm, z, train=True, rng=k)
-        kl = -0.5 * jnp.mean(1 + logvar - mu**2 - jnp.exp(logvar))
-        return jnp.mean((rec - m) ** 2) + tc.vae_kl_weight * kl
-
-    def ebm_loss(prm, images, pos, k):
-        b = images.shape[0]
-        neg_gt = pos[jax.random.randint(k, (b, tc.ebm_gt_negatives), 0, b)]
-        neg_vae = vae.sample_around(vparams, pos, k, tc.vae_negative_sigma, tc.ebm_vae_negatives)
-        cands = jnp.concatenate([pos[:, None], neg_gt, jax.lax.stop_gradient(neg_vae)], axis=1)
-        feats = ebm.encode(prm, images, train=True, rng=k)
-        e = jax.vmap(lambda f, c: ebm.energy(prm, f, c, train=True, rng=k))(feats, cands)
-        return jnp.mean(jax.nn.logsumexp(-e, axis=1) + e[:, 0])
-
-    def dmo_loss(prm, images, gt, k):
-        x = jax.lax.stop_gradient(vae.sample_around(vparams, gt, k, tc.dmo_input_sigma))
-        feats = dmo.encode(prm, images, train=True, rng=k)
-        loss = 0.0
-        for _ in range(tc.dmo_train_iters):
-            x = jax.vmap(lambda f, m: dmo.refine(prm, f, m[None], train=True, rng=k)[0])(feats, x)
-            loss = loss + jnp.mean((x - gt) ** 2)
-        return loss / tc.dmo_train_iters
-
-    def make_step(loss_fn):
-        @jax.jit
-        def step(prm, state, *batch):
-            loss, grads = jax.value_and_grad(loss_fn)(prm, *batch)
-            updates, state = opt.update(grads, state, prm)
-            return optax.apply_updates(prm, updates), state, loss
-        return step
-
-    k1, k2, k3 = jax.random.split(key, 3)
-    setups = {
-        "vae": (vae_loss, vparams, (motions(k1, tc.vae_batch), k2), tc.vae_steps),
-        "ebm": (ebm_loss, jax.jit(ebm.init)(k1),
-                (jax.random.uniform(k2, (tc.ebm_batch, s, s, 4)), motions(k3, tc.ebm_batch), k1), tc.ebm_steps),
-        "dmo": (dmo_loss, jax.jit(dmo.init)(k2),
-                (jax.random.uniform(k3, (tc.dmo_batch, s, s, 4)), motions(k1, tc.dmo_batch), k2), tc.dmo_steps),
-    }
+    s = p.image_size
+    rng = np.random.default_rng(0)
+    n = max(p.train.vae_batch, p.train.ebm_batch, p.train.dmo_batch)
+    motions = np.concatenate(
+        [rng.uniform(-1, 1, (n, 101, 10)), np.broadcast_to(time_grid()[None, :, None], (n, 101, 1))], axis=-1)
+    data = MotionDataset(rng.uniform(0, 1, (n, s, s, 4)).astype(np.float32), motions.astype(np.float32))
+    vae_params = training.VAENet.from_preset(p).init(jax.random.key(0))
+    specs = {"vae": (training.vae_spec(p), None), "ebm": (training.ebm_spec(p), vae_params),
+             "dmo": (training.dmo_spec(p), vae_params)}
     result = {"preset": p.name, "image_size": s, "models": {}}
     total = 0.0
-    for name, (loss_fn, prm, batch, steps) in setups.items():
-        step, state = make_step(loss_fn), opt.init(prm)
-        t = time.perf_counter()
-        prm, state, loss = step(prm, state, *batch)
-        jax.block_until_ready(loss)
-        compile_s = time.perf_counter() - t
+    for name, (spec, extra) in specs.items():
+        tx = training.make_optimizer(spec.config)
+        params = spec.init_fn(jax.random.key(1))
+        state = training.TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
+        step = jax.jit(training.make_train_step(spec, tx))
         times = []
-        for _ in range(repeats):
+        for i in range(repeats + 1):
+            batch = data.batch(0, i, spec.batch_size)
             t = time.perf_counter()
-            prm, state, loss = step(prm, state, *batch)
-            jax.block_until_ready(loss)
+            state, metrics = step(state, batch, jax.random.key(i), extra)
+            jax.block_until_ready(metrics)
             times.append(time.perf_counter() - t)
-        sec = statistics.median(times)
-        result["models"][name] = {"step_s": sec, "compile_s": compile_s, "steps": steps, "train_s": sec * steps}
-        total += sec * steps + compile_s
+        compile_s, sec = times[0], statistics.median(times[1:])
+        result["models"][name] = {"step_s": sec, "compile_s": compile_s, "steps": spec.steps,
+                                  "train_s": sec * spec.steps, "batch": spec.batch_size}
+        total += sec * spec.steps + compile_s
     result["total_s"] = total
     result["loadavg_1min_at_end"] = os.getloadavg()[0]
     return result

@@ -7,6 +7,7 @@ from envs.tasks import put_knife_on_chopping_board as pk
 from envs.tasks import put_rubbish_in_bin as pr
 from envs.tasks import put_umbrella_in_umbrella_stand as pu
 from envs.tasks import take_plate_off_colored_dish_rack as tp
+from envs.tasks.base import planar_offset
 
 CLASSES = {
     "PK": pk.PutKnifeOnChoppingBoard, "PR": pr.PutRubbishInBin,
@@ -69,7 +70,7 @@ def test_knife_success_needs_placing_then_release():
 
 def test_rubbish_success_inside_bin_only():
     t, s = _task("PR"), _task("PR").reset(1)
-    bin_xy = t._world(s.params, pr.BIN)
+    bin_xy = planar_offset(s.params["base"], s.params["yaw"], pr.BIN)
     inside, above, start = s.qpos.copy(), s.qpos.copy(), s.qpos.copy()
     t.set_free(inside, "rubbish", (*bin_xy, TOP + 0.04))
     _grip(t, inside, 0.02)  # release is not required
@@ -82,7 +83,7 @@ def test_rubbish_success_inside_bin_only():
 
 def test_umbrella_success_in_stand_and_released():
     t, s = _task("PU"), _task("PU").reset(2)
-    stand_xy = t._world(s.params, pu.STAND)
+    stand_xy = planar_offset(s.params["base"], s.params["yaw"], pu.STAND)
     inside = s.qpos.copy()
     t.set_free(inside, "umbrella", (*stand_xy, TOP + 0.012 + pu.TIP), s.params["yaw"])
     grasped = inside.copy()
@@ -95,7 +96,7 @@ def test_umbrella_success_in_stand_and_released():
 def test_plate_success_off_rack_on_table_released():
     t, s = _task("TP"), _task("TP").reset(3)
     yaw = s.params["yaw"]
-    beside_xy = t._world(s.params, (-tp.MOVE, tp.SLOTS[tp.SLOT]))
+    beside_xy = planar_offset(s.params["rack"], s.params["yaw"], (-tp.MOVE, tp.SLOTS[tp.SLOT]))
     standing = s.qpos.copy()
     t.set_free(standing, "plate", (*beside_xy, TOP + tp.PLATE[2]), yaw)
     lying = s.qpos.copy()

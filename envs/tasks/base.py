@@ -14,7 +14,6 @@ import dataclasses
 from typing import ClassVar
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
@@ -42,6 +41,11 @@ def down_grasp(yaw: float) -> np.ndarray:
 
 def yaw_quat(yaw: float) -> np.ndarray:
     return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def planar_offset(origin_xy, yaw: float, local_xy) -> np.ndarray:
+    """``origin_xy + R(yaw) local_xy``: where a point given in a yawed base lands on the table."""
+    return np.asarray(origin_xy, float) + yaw_matrix(yaw)[:2, :2] @ np.asarray(local_xy, float)
 
 
 def quat_rotate(quat: np.ndarray, vec: np.ndarray) -> np.ndarray:
@@ -147,6 +151,14 @@ class Task(abc.ABC):
         """World position of a point given in a free body's frame, ``[..., 3]``."""
         pos, quat = self.free_pose(qpos, joint)
         return pos + quat_rotate(quat, np.broadcast_to(np.asarray(local, float), pos.shape))
+
+    def in_body_frame(self, points: np.ndarray, scenes: SceneBatch, body: str) -> np.ndarray:
+        """World ``points [E, ..., 3]`` -> coordinates in each episode's placement of the fixed ``body``."""
+        i = self.body_id(body)
+        lead = (len(points),) + (1,) * (points.ndim - 2)
+        origin = scenes.body_pos[:, i].reshape(lead + (3,))
+        inverse = (scenes.body_quat[:, i] * np.array([1.0, -1.0, -1.0, -1.0])).reshape(lead + (4,))
+        return quat_rotate(np.broadcast_to(inverse, points.shape[:-1] + (4,)), points - origin)
 
     def tcp_pose(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """TCP (position ``[..., 3]``, rotation ``[..., 3, 3]``) from qpos ``[..., nq]``."""

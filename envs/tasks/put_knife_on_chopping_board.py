@@ -15,7 +15,7 @@ import numpy as np
 
 from envs import panda
 from envs.scripted import Keyframe
-from envs.tasks.base import Task, down_grasp, quat_rotate, yaw_quat
+from envs.tasks.base import Task, down_grasp, quat_rotate
 
 TOP = panda.TABLE_HEIGHT
 HANDLE = (0.045, 0.012, 0.015)  # half sizes; the handle spans knife-x -0.11 .. -0.02
@@ -32,10 +32,6 @@ GRASP_DZ = -0.003  # TCP relative to the handle's axis when grasping (the finger
 GRASP_X = -0.032  # grasp the handle next to the bolster, at the knife's centre of mass
 BOARD_REGION = (np.array([0.42, -0.28]), np.array([0.62, 0.28]))
 BLOCK_REGION = (np.array([0.53, -0.28]), np.array([0.66, 0.28]))
-
-
-def _conj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 class PutKnifeOnChoppingBoard(Task):
@@ -96,11 +92,8 @@ class PutKnifeOnChoppingBoard(Task):
 
     def on_board(self, qpos, scenes):
         """The whole knife (both ends) is over the board, lying flat on it."""
-        i = self.body_id("board")
-        centre = scenes.body_pos[:, i][:, None, None]
-        conj = _conj(scenes.body_quat[:, i])[:, None, None]
         ends = np.stack([self.free_point(qpos, "knife", (x, 0.0, 0.0)) for x in (-TIP, TIP)], axis=-2)
-        local = quat_rotate(np.broadcast_to(conj, ends.shape[:-1] + (4,)), ends - centre)
+        local = self.in_body_frame(ends, scenes, "board")
         over = np.all((np.abs(local[..., 0]) < BOARD[0]) & (np.abs(local[..., 1]) < BOARD[1]), axis=-1)
         pos, quat = self.free_pose(qpos, "knife")
         up = quat_rotate(quat, np.broadcast_to([0.0, 0.0, 1.0], pos.shape))[..., 2]

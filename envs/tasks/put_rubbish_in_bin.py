@@ -12,7 +12,7 @@ import numpy as np
 
 from envs import panda
 from envs.scripted import Keyframe
-from envs.tasks.base import Task, down_grasp, quat_rotate, yaw_matrix
+from envs.tasks.base import Task, down_grasp, planar_offset
 
 TOP = panda.TABLE_HEIGHT
 RUBBISH = 0.022  # half side of the paper ball's collision cube
@@ -25,10 +25,6 @@ SPOTS = np.array([[-0.06, 0.0], [0.07, 0.06], [-0.04, 0.14]])
 BIN = np.array([0.0, -0.17])
 BASE_REGION = (np.array([0.45, -0.12]), np.array([0.57, 0.12]))
 BASE_YAW = np.pi / 4
-
-
-def _conj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def _tomato(name: str) -> str:
@@ -77,31 +73,24 @@ class PutRubbishInBin(Task):
         return {"base": rng.uniform(*BASE_REGION), "yaw": float(rng.uniform(-BASE_YAW, BASE_YAW)),
                 "rubbish_spot": int(rng.integers(3))}
 
-    def _world(self, params, local):
-        return params["base"] + yaw_matrix(params["yaw"])[:2, :2] @ local
-
     def place(self, params, qpos, body_pos, body_quat):
         yaw = params["yaw"]
-        self.set_body(body_pos, body_quat, "bin", self._world(params, BIN), yaw)
+        self.set_body(body_pos, body_quat, "bin", planar_offset(params["base"], yaw, BIN), yaw)
         spot = params["rubbish_spot"]
         tomatoes = [i for i in range(3) if i != spot]
         for name, i in zip(("tomato1", "tomato2"), tomatoes):
-            self.set_body(body_pos, body_quat, name, self._world(params, SPOTS[i]), yaw)
-        self.set_free(qpos, "rubbish", (*self._world(params, SPOTS[spot]), TOP + RUBBISH), yaw)
+            self.set_body(body_pos, body_quat, name, planar_offset(params["base"], yaw, SPOTS[i]), yaw)
+        self.set_free(qpos, "rubbish", (*planar_offset(params["base"], yaw, SPOTS[spot]), TOP + RUBBISH), yaw)
 
     def success(self, qpos, scenes):
-        i = self.body_id("bin")
-        centre = scenes.body_pos[:, i][:, None]
-        pos = self.free_pose(qpos, "rubbish")[0]
-        local = quat_rotate(np.broadcast_to(_conj(scenes.body_quat[:, i])[:, None], pos.shape[:-1] + (4,)),
-                            pos - centre)
+        local = self.in_body_frame(self.free_pose(qpos, "rubbish")[0], scenes, "bin")
         inside = np.all(np.abs(local[..., :2]) < BIN_IN, axis=-1)
         return inside & (local[..., 2] > 0) & (local[..., 2] < BIN_H)
 
     def expert_keyframes(self, scene):
         p = scene.params
-        x, y = self._world(p, SPOTS[p["rubbish_spot"]])
-        bx, by = self._world(p, BIN)
+        x, y = planar_offset(p["base"], p["yaw"], SPOTS[p["rubbish_spot"]])
+        bx, by = planar_offset(p["base"], p["yaw"], BIN)
         r = down_grasp(p["yaw"])
         grip = TOP + RUBBISH + 0.006
         carry = TOP + BIN_H + 0.12

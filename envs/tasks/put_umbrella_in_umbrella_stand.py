@@ -13,7 +13,7 @@ import numpy as np
 
 from envs import panda
 from envs.scripted import Keyframe
-from envs.tasks.base import Task, down_grasp, quat_rotate, yaw_matrix
+from envs.tasks.base import Task, down_grasp, planar_offset
 
 TOP = panda.TABLE_HEIGHT
 CANOPY = (0.024, 0.024, 0.09)  # half sizes of the furled canopy's collision box
@@ -28,10 +28,6 @@ STAND = np.array([0.0, 0.12])
 UMBRELLA = np.array([0.0, -0.1])
 BASE_REGION = (np.array([0.45, -0.12]), np.array([0.6, 0.12]))
 BASE_YAW = np.pi / 4
-
-
-def _conj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 class PutUmbrellaInUmbrellaStand(Task):
@@ -83,19 +79,13 @@ class PutUmbrellaInUmbrellaStand(Task):
     def randomize(self, rng):
         return {"base": rng.uniform(*BASE_REGION), "yaw": float(rng.uniform(-BASE_YAW, BASE_YAW))}
 
-    def _world(self, params, local):
-        return params["base"] + yaw_matrix(params["yaw"])[:2, :2] @ local
-
     def place(self, params, qpos, body_pos, body_quat):
-        self.set_body(body_pos, body_quat, "stand", self._world(params, STAND), params["yaw"])
-        self.set_free(qpos, "umbrella", (*self._world(params, UMBRELLA), TOP + TIP), params["yaw"])
+        self.set_body(body_pos, body_quat, "stand", planar_offset(params["base"], params["yaw"], STAND), params["yaw"])
+        self.set_free(qpos, "umbrella", (*planar_offset(params["base"], params["yaw"], UMBRELLA), TOP + TIP), params["yaw"])
 
     def in_stand(self, qpos, scenes):
         """The umbrella's tip is within the stand's walls and below half its height."""
-        i = self.body_id("stand")
-        tip = self.free_point(qpos, "umbrella", (0.0, 0.0, -TIP))
-        conj = np.broadcast_to(_conj(scenes.body_quat[:, i])[:, None], tip.shape[:-1] + (4,))
-        local = quat_rotate(conj, tip - scenes.body_pos[:, i][:, None])
+        local = self.in_body_frame(self.free_point(qpos, "umbrella", (0.0, 0.0, -TIP)), scenes, "stand")
         return np.all(np.abs(local[..., :2]) < STAND_IN, axis=-1) & (local[..., 2] < STAND_H / 2)
 
     def success(self, qpos, scenes):
@@ -103,8 +93,8 @@ class PutUmbrellaInUmbrellaStand(Task):
 
     def expert_keyframes(self, scene):
         p = scene.params
-        x, y = self._world(p, UMBRELLA)
-        sx, sy = self._world(p, STAND)
+        x, y = planar_offset(p["base"], p["yaw"], UMBRELLA)
+        sx, sy = planar_offset(p["base"], p["yaw"], STAND)
         r = down_grasp(p["yaw"])
         grip = TOP + TIP + GRIP_Z - 0.005  # fingertips 1 cm below the TCP: pads cover most of the handle
         lift = STAND_H + 0.04  # tip clears the rim

@@ -13,7 +13,7 @@ import numpy as np
 
 from envs import panda
 from envs.scripted import Keyframe
-from envs.tasks.base import Task, down_grasp, quat_rotate, yaw_matrix
+from envs.tasks.base import Task, down_grasp, planar_offset
 
 TOP = panda.TABLE_HEIGHT
 PLATE = (0.075, 0.006, 0.075)  # half sizes of the plate's collision box (plate plane = local xz)
@@ -28,10 +28,6 @@ SPOKE_R = 0.004
 MOVE = 0.25  # how far the expert carries the plate along the rack's x
 REGION = (np.array([0.42, -0.2]), np.array([0.6, 0.2]))
 YAW = np.pi / 4
-
-
-def _conj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 class TakePlateOffColoredDishRack(Task):
@@ -71,19 +67,14 @@ class TakePlateOffColoredDishRack(Task):
     def randomize(self, rng):
         return {"rack": rng.uniform(*REGION), "yaw": float(rng.uniform(-YAW, YAW))}
 
-    def _world(self, params, local):
-        return params["rack"] + yaw_matrix(params["yaw"])[:2, :2] @ np.asarray(local, float)
-
     def place(self, params, qpos, body_pos, body_quat):
         self.set_body(body_pos, body_quat, "rack", params["rack"], params["yaw"])
-        xy = self._world(params, (0.0, SLOTS[SLOT]))
+        xy = planar_offset(params["rack"], params["yaw"], (0.0, SLOTS[SLOT]))
         self.set_free(qpos, "plate", (*xy, TOP + 2 * BASE[2] + PLATE[2]), params["yaw"])
 
     def success(self, qpos, scenes):
-        i = self.body_id("rack")
         pos, quat = self.free_pose(qpos, "plate")
-        conj = np.broadcast_to(_conj(scenes.body_quat[:, i])[:, None], pos.shape[:-1] + (4,))
-        local = quat_rotate(conj, pos - scenes.body_pos[:, i][:, None])
+        local = self.in_body_frame(pos, scenes, "rack")
         out = (np.abs(local[..., 0]) > BASE[0] + 0.02) | (np.abs(local[..., 1]) > BASE[1] + 0.02)
         # Lowest point of the plate's box: centre minus the box's vertical half extent.
         w, x, y, z = np.moveaxis(quat, -1, 0)
@@ -94,10 +85,10 @@ class TakePlateOffColoredDishRack(Task):
 
     def expert_keyframes(self, scene):
         p = scene.params
-        x, y = self._world(p, (0.0, SLOTS[SLOT]))
+        x, y = planar_offset(p["rack"], p["yaw"], (0.0, SLOTS[SLOT]))
         # Carry the plate along the rack's x, towards the robot unless that leaves the table's reach.
-        side = -1.0 if self._world(p, (-MOVE, SLOTS[SLOT]))[0] > 0.3 else 1.0
-        dx, dy = self._world(p, (side * MOVE, SLOTS[SLOT]))
+        side = -1.0 if planar_offset(p["rack"], p["yaw"], (-MOVE, SLOTS[SLOT]))[0] > 0.3 else 1.0
+        dx, dy = planar_offset(p["rack"], p["yaw"], (side * MOVE, SLOTS[SLOT]))
         r = down_grasp(p["yaw"])
         top = TOP + 2 * BASE[2] + 2 * PLATE[2]
         grip = top - 0.02

@@ -130,23 +130,21 @@ class Preset:
 
 PAPER = Preset(name="paper", image_size=256)
 
-# cpu: PROVISIONAL sizes, not yet validated against the 15-minute budget. Measure with
-# `bin/benchmark --only train-step --preset cpu` on an idle machine. On 2026-11-22, with
-# the machine shared (load average 5-7 on 2 cores), that command gave VAE 2.09 s, EBM 6.39 s,
-# DMO 0.70 s per step, plus 55-126 s to compile each model: far over budget. Those numbers
-# are unreliable under that load; the VAE step in particular is suspect. Re-measure before
-# using this preset.
-# Encoder forward at 64 px: the "shift" depthwise conv takes 0.006 s against 0.018 s for the
-# grouped conv (`bin/benchmark --only encoder --preset cpu`).
+# cpu: the default, sized for a 2-core laptop CPU at 64 px (encoder forward 0.006 s per image).
 CPU = Preset(
     name="cpu",
     image_size=64,
     encoder=EncoderConfig(dims=(32, 64, 128, 256), enc_depths=(1, 1, 3, 1), dec_depths=(1, 1, 1), out_dim=64),
     head=HeadConfig(width=64, num_blocks=2, num_heads=4, vit_tokens_per_side=16),
     vae=VAEConfig(d_model=128, num_layers=2, num_heads=4, ff_dim=256, input_hidden=(128, 256)),
+    # Measured with `bin/benchmark --only train-step --preset cpu` (2 cores, load 1.5): at EBM
+    # batch 16 x 64 candidates a step took 5.9 s (the head's Transformer over 1,024 x 101
+    # tokens dominates); 8 images x 16 candidates cut the head's gradient from 4.2 s to 0.40 s.
+    # VAE 0.28 s/step, DMO (R = 3) 0.36 s/step. PROVISIONAL: not yet validated against the
+    # training targets (held-out top-1 >= 90 % among 64, DMO error halved, <= 15 min).
     train=TrainConfig(
-        vae_steps=1500, vae_batch=32, ebm_steps=1500, ebm_batch=16, dmo_steps=1500, dmo_batch=16,
-        lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
+        vae_steps=1000, vae_batch=32, ebm_steps=1000, ebm_batch=8, ebm_gt_negatives=7, ebm_vae_negatives=8,
+        dmo_steps=1000, dmo_batch=16, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
     ),
 )
 

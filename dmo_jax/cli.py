@@ -33,13 +33,13 @@ def train_all_main(argv: list[str] | None = None) -> None:
     if args.dmo_steps is not None and args.dmo_steps < 1:
         _fail(f"--dmo-steps must be at least 1, got {args.dmo_steps}")
 
-    from envs.cli import _task_names, default_data_dir
+    from envs.cli import task_names, default_data_dir
     from envs.dataset import DatasetError
     from dmo_jax import training, workflow
     from dmo_jax.config import get_preset
 
     preset = get_preset(args.preset, args.variant)
-    names = _task_names(args.tasks)
+    names = task_names(args.tasks)
     data = args.data or default_data_dir(preset.image_size)
     training.maybe_initialize_distributed()
     summaries, start = {}, time.perf_counter()

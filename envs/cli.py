@@ -38,7 +38,7 @@ def render_main(argv: list[str] | None = None) -> None:
 
     try:
         if args.task:
-            image = _contact_sheet(_task_names(args.task), args.size, args.seed)
+            image = _contact_sheet(task_names(args.task), args.size, args.seed)
             what = f"contact sheet of {args.task}"
         else:
             world = demo.default_world(args.size)
@@ -119,7 +119,7 @@ def execute_main(argv: list[str] | None = None) -> None:
         tmp.replace(args.json)
 
 
-def _task_names(arg: str) -> list[str]:
+def task_names(arg: str) -> list[str]:
     from envs.evaluation import TASK_ORDER
     from envs.tasks import TASKS
 
@@ -149,7 +149,7 @@ def generate_data_main(argv: list[str] | None = None) -> None:
         _positive(f"--{name.replace('_', '-')}", getattr(args, name))
     if args.seed < 0:
         _fail(f"--seed must be non-negative, got {args.seed}")
-    names = _task_names(args.task)
+    names = task_names(args.task)
     out = Path(args.out or default_data_dir(args.image_size))
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -185,7 +185,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args(argv)
     _positive("--episodes", args.episodes)
-    names = _task_names(args.task)
+    names = task_names(args.task)
     if args.json and not Path(args.json).resolve().parent.is_dir():
         _fail(f"directory of --json {args.json} does not exist")
 
@@ -226,7 +226,7 @@ def task_report_main(argv: list[str] | None = None) -> None:
     from envs.evaluation import task_suite_report
 
     try:
-        table = task_suite_report(args.data, _task_names(args.task), args.episodes, args.mjx_episodes,
+        table = task_suite_report(args.data, task_names(args.task), args.episodes, args.mjx_episodes,
                                   log=lambda row: print(row, file=sys.stderr))
     except DatasetError as err:
         _fail(str(err))

@@ -122,14 +122,18 @@ def position_error(pred, target, intrinsics, image_size: int) -> jnp.ndarray:
     return jnp.mean(jnp.linalg.norm(xyz(pred) - xyz(target), axis=-1))
 
 
-def dmo_eval(dmo, params, images, inputs, targets, steps: int, intrinsics, image_size: int):
+def dmo_eval(dmo, params, images, inputs, targets, steps: int, intrinsics, image_size: int, unroll: int = 1):
     """Held-out errors before and after ``steps`` refinements: per key (MSE) and the mean
-    3-D position error in metres (``position_before`` / ``position_after``)."""
+    3-D position error in metres (``position_before`` / ``position_after``); with
+    ``unroll > steps`` also ``position_after_unroll`` after ``unroll`` refinements."""
     feature = dmo.encode(params, images)
-    outs = jax.vmap(lambda f, m: dmo_unroll(dmo, params, f, m[None], steps)[-1, 0])(feature, inputs)
-    before, after = motion_errors(inputs, targets), motion_errors(outs, targets)
+    n = max(steps, unroll)
+    outs = jax.vmap(lambda f, m: dmo_unroll(dmo, params, f, m[None], n)[:, 0], out_axes=1)(feature, inputs)
+    before, after = motion_errors(inputs, targets), motion_errors(outs[steps - 1], targets)
     before["position"] = position_error(inputs, targets, intrinsics, image_size)
-    after["position"] = position_error(outs, targets, intrinsics, image_size)
+    after["position"] = position_error(outs[steps - 1], targets, intrinsics, image_size)
     metrics = {f"{k}_before": v for k, v in before.items()}
     metrics.update({f"{k}_after": v for k, v in after.items()})
+    if unroll > steps:
+        metrics["position_after_unroll"] = position_error(outs[-1], targets, intrinsics, image_size)
     return metrics

@@ -158,7 +158,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
         m = jnp.asarray(heldout.motions)
         inputs = vae.sample_around(vae_params, m, jax.random.key(4321), cfg.dmo_input_sigma)
         k, size = heldout_camera
-        return jax.jit(lambda p, i, x, t: losses.dmo_eval(net, p, i, x, t, cfg.dmo_infer_iters, k, size))(
+        return jax.jit(lambda p, i, x, t: losses.dmo_eval(net, p, i, x, t, cfg.dmo_infer_iters, k, size, r))(
             params, jnp.asarray(heldout.images), inputs, m)
 
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
@@ -199,9 +199,12 @@ def _check_meta(saved: dict, expected: dict, path: Path) -> None:
                             "use another --workdir or the matching settings")
 
 
-def load_params(path: str | Path, spec: ModelSpec):
-    """Parameters of the latest checkpoint in ``path`` (checked against ``spec.meta``)."""
-    path = Path(path)
+def load_params(workdir: str | Path, spec: ModelSpec):
+    """Parameters and metadata of the latest checkpoint of the run in ``workdir`` (the directory
+    given to :func:`fit`), checked against ``spec.meta``."""
+    path = Path(workdir) / "checkpoints"
+    if not path.is_dir():
+        raise TrainingError(f"no checkpoint in {path}: train this model first (bin/train_all)")
     mngr = _checkpoint_manager(path, 1)
     step = mngr.latest_step()
     if step is None:

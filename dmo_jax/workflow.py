@@ -61,6 +61,11 @@ def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = T
     return MotionDataset.from_split(train), MotionDataset.from_split(test), camera
 
 
+def _quarter(spec: training.ModelSpec) -> int:
+    """Held-out evaluation four times per run (a learning curve at small cost)."""
+    return max(1, spec.steps // 4)
+
+
 def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: str = "in-data+vae",
                dmo_train_iters: int | None = None, seed: int = 0, log=print) -> dict:
     """Train (or load) the VAE, EBM and DMO of one task; returns a summary per model."""
@@ -69,10 +74,30 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
     summary = {}
     t0 = time.perf_counter()
-    vae_params, summary["vae"] = training.fit(training.vae_spec(preset, heldout), train, paths.vae(), seed=seed)
+    vae_spec = training.vae_spec(preset, heldout)
+    vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_quarter(vae_spec))
     ebm_spec = training.ebm_spec(preset, negatives, heldout)
-    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset.variant, negatives), extra=vae_params, seed=seed)
+    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset.variant, negatives), extra=vae_params,
+                                     seed=seed, eval_every=_quarter(ebm_spec))
     dmo_spec = training.dmo_spec(preset, r, heldout, camera)
-    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset.variant, r), extra=vae_params, seed=seed)
+    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset.variant, r), extra=vae_params, seed=seed,
+                                     eval_every=_quarter(dmo_spec))
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
     return summary
+
+
+def load_models(workdir, task_name: str, preset: Preset, method: str, negatives: str = "in-data+vae",
+                dmo_train_iters: int | None = None):
+    """The trained networks ``method`` needs (``dmo_jax.inference.Models``), from ``bin/train_all``'s
+    work directory; raises ``training.TrainingError`` naming what is missing or mismatched."""
+    from .inference import Models
+
+    paths = RunPaths.of(workdir, task_name, preset)
+    ebm, _ = training.load_params(paths.ebm(preset.variant, negatives), training.ebm_spec(preset, negatives))
+    dmo = vae = None
+    if method == "dmo":
+        r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
+        dmo, _ = training.load_params(paths.dmo(preset.variant, r), training.dmo_spec(preset, r))
+    if method in ("vaebm-l", "vaebm-s"):
+        vae, _ = training.load_params(paths.vae(), training.vae_spec(preset))
+    return Models(ebm, dmo, vae)

@@ -1,4 +1,5 @@
-"""Library functions behind ``bin/render`` and ``bin/execute``."""
+"""Library functions behind the simulator's commands (``bin/render``, ``bin/execute``,
+``bin/generate_data``, ``bin/task_report``)."""
 from __future__ import annotations
 
 import argparse
@@ -15,7 +16,7 @@ def default_data_dir(image_size: int) -> str:
     return f"data/{image_size}px"
 
 
-def _fail(message: str) -> None:
+def fail(message: str) -> None:
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(2)
 
@@ -31,7 +32,7 @@ def render_main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     out = Path(args.out)
     if not out.parent.resolve().is_dir():
-        _fail(f"output directory {out.parent} does not exist")
+        fail(f"output directory {out.parent} does not exist")
     import mujoco
 
     from envs import camera, demo
@@ -50,7 +51,7 @@ def render_main(argv: list[str] | None = None) -> None:
             image = np.concatenate([rgb, camera.depth_to_rgb(depth)], axis=1)
             what = f"RGB | depth {depth.min():.2f}-{depth.max():.2f} m"
     except (ValueError, RuntimeError) as err:
-        _fail(str(err))
+        fail(str(err))
     camera.write_png(out, image)
     print(f"wrote {out} ({what})")
 
@@ -90,7 +91,7 @@ def execute_main(argv: list[str] | None = None) -> None:
         try:
             motion = np.load(args.motion, allow_pickle=False)
         except (OSError, ValueError) as err:
-            _fail(f"cannot read motion file {args.motion}: {err}")
+            fail(f"cannot read motion file {args.motion}: {err}")
     else:
         motion = demo.pick_cube_motion(world)
     if args.save_motion:
@@ -100,7 +101,7 @@ def execute_main(argv: list[str] | None = None) -> None:
     try:
         result = execution.execute(world, motion, world.default_scenes(1), demo.cube_lifted(world), args.backend)
     except ValueError as err:
-        _fail(str(err))
+        fail(str(err))
     cube = world.model.joint("cube_free").qposadr[0]
     print("waypoint  ik  valid  cube_xyz               success")
     for w in range(result.qpos.shape[1]):
@@ -126,13 +127,13 @@ def task_names(arg: str) -> list[str]:
     names = [t for t in TASK_ORDER if t in TASKS] if arg == "all" else arg.split(",")
     unknown = [n for n in names if n not in TASKS]
     if unknown:
-        _fail(f"unknown task {unknown[0]!r}; expected 'all' or a comma-separated list of: {', '.join(TASKS)}")
+        fail(f"unknown task {unknown[0]!r}; expected 'all' or a comma-separated list of: {', '.join(TASKS)}")
     return names
 
 
-def _positive(name: str, value: int) -> None:
+def positive(name: str, value: int) -> None:
     if value < 1:
-        _fail(f"{name} must be a positive integer, got {value}")
+        fail(f"{name} must be a positive integer, got {value}")
 
 
 def generate_data_main(argv: list[str] | None = None) -> None:
@@ -146,17 +147,17 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=None, help="physics threads (default: one per core)")
     args = parser.parse_args(argv)
     for name in ("train", "test", "image_size"):
-        _positive(f"--{name.replace('_', '-')}", getattr(args, name))
+        positive(f"--{name.replace('_', '-')}", getattr(args, name))
     if args.seed < 0:
-        _fail(f"--seed must be non-negative, got {args.seed}")
+        fail(f"--seed must be non-negative, got {args.seed}")
     names = task_names(args.task)
     out = Path(args.out or default_data_dir(args.image_size))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        _fail(f"cannot create output directory {out}: {err}")
+        fail(f"cannot create output directory {out}: {err}")
     if not os.access(out, os.W_OK):
-        _fail(f"output directory {out} is not writable")
+        fail(f"output directory {out} is not writable")
 
     import time
 
@@ -173,44 +174,6 @@ def generate_data_main(argv: list[str] | None = None) -> None:
               f"{time.perf_counter() - start:.1f} s (expert success {meta['expert_success_rate']:.1%}) -> {out / name}")
 
 
-def evaluate_main(argv: list[str] | None = None) -> None:
-    from envs.evaluation import WORLD_METHODS
-
-    parser = argparse.ArgumentParser(description="Execute a method's motions on the test scenes and report success.")
-    parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
-    parser.add_argument("--method", required=True, choices=WORLD_METHODS)
-    parser.add_argument("--episodes", type=int, default=100, help="test episodes per task (default 100)")
-    parser.add_argument("--data", default=default_data_dir(256), help="dataset root directory (default ./data/256px)")
-    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"))
-    parser.add_argument("--json", help="write the results as JSON to this file")
-    args = parser.parse_args(argv)
-    _positive("--episodes", args.episodes)
-    names = task_names(args.task)
-    if args.json and not Path(args.json).resolve().parent.is_dir():
-        _fail(f"directory of --json {args.json} does not exist")
-
-    from envs import evaluation
-    from envs.dataset import DatasetError
-
-    results, rates = [], {}
-    for name in names:
-        try:
-            result = evaluation.evaluate_world_method(name, args.method, args.episodes, args.data, args.backend)
-        except DatasetError as err:
-            _fail(str(err))
-        results.append(result)
-        rates[name] = result["success_rate"]
-        print(f"{name}: {result['successes']}/{result['episodes']} = {rates[name]:.0%} ({result['seconds']:.1f} s)",
-              file=sys.stderr)
-    print(evaluation.success_table(rates, args.method))
-    if args.json:
-        payload = results[0] if len(results) == 1 else {"results": results}
-        payload = {**payload, "settings": {"backend": args.backend, "data": args.data}}
-        tmp = Path(args.json + ".tmp")
-        tmp.write_text(json.dumps(payload, indent=2))
-        tmp.replace(args.json)
-
-
 def task_report_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description="The task-suite table of BENCHMARKS.md: expert and blind success on the native back-end "
@@ -220,8 +183,8 @@ def task_report_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--mjx-episodes", type=int, default=20)
     args = parser.parse_args(argv)
-    _positive("--episodes", args.episodes)
-    _positive("--mjx-episodes", args.mjx_episodes)
+    positive("--episodes", args.episodes)
+    positive("--mjx-episodes", args.mjx_episodes)
     from envs.dataset import DatasetError
     from envs.evaluation import task_suite_report
 
@@ -229,5 +192,5 @@ def task_report_main(argv: list[str] | None = None) -> None:
         table = task_suite_report(args.data, task_names(args.task), args.episodes, args.mjx_episodes,
                                   log=lambda row: print(row, file=sys.stderr))
     except DatasetError as err:
-        _fail(str(err))
+        fail(str(err))
     print(table)

@@ -68,38 +68,49 @@ def world_method_candidates(method: str, test: Split, train: Split | None, episo
 
 
 def evaluate_world_method(name: str, method: str, episodes: int, data_root, backend: str = "auto") -> dict:
-    """Evaluate ``expert`` or ``blind`` on the first ``episodes`` test scenes of task ``name``.
-
-    Returns ``{"task", "method", "episodes", "successes", "success_rate", "seconds",
-    "episode_success"}``; raises ``envs.dataset.DatasetError`` if the data is missing.
-    """
-    import time
-
+    """Evaluate ``expert`` or ``blind`` on the first ``episodes`` test scenes of task ``name``
+    (see :func:`run_episodes` for the result); raises ``envs.dataset.DatasetError`` if the
+    data is missing."""
     from envs.dataset import load_split
-    from envs.tasks import get_task
 
     test = load_split(data_root, name, "test")
     train = load_split(data_root, name, "train") if method == "blind" else None
     episodes = min(episodes, len(test))
+    return {"method": method, **run_episodes(name, test, world_method_candidates(method, test, train, episodes),
+                                             backend)}
+
+
+def run_episodes(name: str, test: Split, candidates: np.ndarray, backend: str = "auto") -> dict:
+    """Rebuild the first ``E`` test scenes of task ``name`` from their seeds and execute the
+    ranked ``candidates [E, n, 101, 11]`` with fallback. Returns ``{"task", "episodes",
+    "successes", "success_rate", "seconds", "episode_success", "candidate_used"}``."""
+    import time
+
+    from envs.tasks import get_task
+
+    episodes = len(candidates)
     task = get_task(name, test.meta["image_size"])
     scenes = [task.reset(int(s)) for s in test.seeds[:episodes]]
     start = time.perf_counter()
-    out = execute_candidates(task, scenes, world_method_candidates(method, test, train, episodes), backend)
+    out = execute_candidates(task, scenes, candidates, backend)
     successes = int(out["success"].sum())
     return {
-        "task": name, "method": method, "episodes": episodes, "successes": successes,
-        "success_rate": successes / episodes, "seconds": round(time.perf_counter() - start, 2),
-        "episode_success": out["success"].astype(int).tolist(),
+        "task": name, "episodes": episodes, "successes": successes, "success_rate": successes / episodes,
+        "seconds": round(time.perf_counter() - start, 2), "episode_success": out["success"].astype(int).tolist(),
+        "candidate_used": out["candidate"].tolist(),
     }
 
 
-def success_table(rates: dict[str, float], label: str) -> str:
-    """One row in the paper's layout (CB PC PB PK PR PU RT SW TP, then the average)."""
-    head = "| method | " + " | ".join(ABBREVIATIONS[t] for t in TASK_ORDER) + " | avg |"
-    sep = "|---" * (len(TASK_ORDER) + 2) + "|"
-    cells = [f"{100 * rates[t]:.0f}" if t in rates else "–" for t in TASK_ORDER]
-    avg = f"{100 * np.mean(list(rates.values())):.1f}" if rates else "–"
-    return "\n".join([head, sep, f"| {label} | " + " | ".join(cells) + f" | {avg} |"])
+def success_table(rows: list[tuple[str, dict[str, float]]]) -> str:
+    """Markdown table in the paper's layout (CB PC PB PK PR PU RT SW TP, then the average over
+    the tasks evaluated): one row per ``(label, {task: success rate})``."""
+    lines = ["| method | " + " | ".join(ABBREVIATIONS[t] for t in TASK_ORDER) + " | avg |",
+             "|---" * (len(TASK_ORDER) + 2) + "|"]
+    for label, rates in rows:
+        cells = [f"{100 * rates[t]:.0f}" if t in rates else "–" for t in TASK_ORDER]
+        avg = f"{100 * np.mean(list(rates.values())):.1f}" if rates else "–"
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {avg} |")
+    return "\n".join(lines)
 
 
 def task_suite_report(data_root, tasks, episodes: int = 100, mjx_episodes: int = 20, log=print) -> str:

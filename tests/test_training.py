@@ -89,7 +89,7 @@ def test_trained_model_is_loaded_not_retrained(task_data, tmp_path):
     first, _ = training.fit(spec, task_data[0], tmp_path, verbose=False)
     again, summary = training.fit(spec, task_data[0], tmp_path, verbose=False)
     jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), first, again)
-    loaded, meta = training.load_params(tmp_path / "checkpoints", spec)
+    loaded, meta = training.load_params(tmp_path, spec)
     jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), first, loaded)
     assert meta["preset"] == "tiny" and meta["dataset"]["episodes"] == 16
 
@@ -98,7 +98,7 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
     training.fit(training.vae_spec(_fast(TINY, 2)), task_data[0], tmp_path, verbose=False)
     other = training.vae_spec(get_preset("cpu"))
     with pytest.raises(training.TrainingError, match="preset: checkpoint has 'tiny', expected 'cpu'"):
-        training.load_params(tmp_path / "checkpoints", other)
+        training.load_params(tmp_path, other)
     with pytest.raises(training.TrainingError, match="other settings"):
         training.fit(training.vae_spec(_fast(TINY, 3)), task_data[0], tmp_path, verbose=False)
 

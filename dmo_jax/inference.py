@@ -1,0 +1,236 @@
+"""Prediction (method.md, "Inference") and the paper's baselines behind one interface.
+
+:func:`predict` is pure and ``jax.jit``-compiled once per (method, n, R, bank size, image
+batch shape). For every method it
+
+1. encodes F once per image with the EBM (and once with the DMO for ``method="dmo"``);
+2. scores the whole bank of training motions in chunks of ``chunk`` (memory stays bounded
+   for any bank size) and keeps the ``n`` lowest-energy motions;
+3. optimises those n candidates with the chosen method (:data:`METHODS`);
+4. re-scores the originals and every optimised candidate with the EBM and returns them
+   ranked (lowest energy first), so execution can fall back to the next candidate.
+
+Methods (all start from the same top-n; settings of method.md):
+
+* ``sort``      EBM ranking only, no optimisation;
+* ``dmo``       the Deep Motion Optimizer applied R times, vmapped over the candidates,
+  reusing F; every intermediate step is a candidate;
+* ``langevin``  x <- x - eps * dE/dx + sqrt(2 eps) * noise, eps = 1e-3, 100 iterations;
+* ``gd``        the same without noise;
+* ``vaebm-l``   Langevin in the motion VAE's latent space on E(decode(z)) + |z|^2 / 2, step 1e-2;
+* ``vaebm-s``   the same with step 1e-3;
+* ``dfo``       IBC's derivative-free optimiser (resample by softmax(-E), perturb, shrink).
+
+Gradient methods update uv, z, the 6-D rotation and grasp (never time) and project at the
+end: uv to [-1, 1], grasp to [0, 1], rotation re-orthonormalised (Gram–Schmidt).
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .config import Preset
+from .losses import dmo_unroll
+from .motion import GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, matrix_to_rot6d, rot6d_to_matrix
+from .networks import DMONet, EBMNet
+from .vae import VAENet
+
+METHODS = ("sort", "dmo", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo")
+#: Methods whose result depends on R (the DMO's refinements); the others ignore it.
+METHODS_USING_R = ("dmo",)
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizerSettings:
+    """Baseline settings (method.md, "Baselines"); the defaults are the paper's."""
+
+    langevin_step: float = 1e-3
+    langevin_iters: int = 100
+    vaebm_l_step: float = 1e-2
+    vaebm_s_step: float = 1e-3
+    vaebm_iters: int = 100
+    dfo_iters: int = 3
+    dfo_noise: float = 0.02  # initial std of the perturbation, in motion units
+    dfo_shrink: float = 0.5
+
+
+class Models(NamedTuple):
+    """Parameters of one task's trained networks (``dmo`` / ``vae`` may be None when the
+    method does not need them)."""
+
+    ebm: Any
+    dmo: Any = None
+    vae: Any = None
+
+
+class Prediction(NamedTuple):
+    """``motion [..., 101, 11]`` the best candidate; ``candidates [..., K, 101, 11]`` all
+    candidates ranked by ``energies [..., K]`` (ascending). K = n * (R + 1) for ``dmo``,
+    n for ``sort``, 2 n for the other methods (originals + optimised)."""
+
+    motion: jax.Array
+    candidates: jax.Array
+    energies: jax.Array
+
+
+def num_candidates(method: str, n: int, R: int) -> int:
+    """K, the number of ranked candidates :func:`predict` returns."""
+    if method == "sort":
+        return n
+    if method == "dmo":
+        return n * (R + 1)
+    return 2 * n
+
+
+def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, R: int) -> None:
+    """Static checks of a :func:`predict` call; raises ``ValueError`` naming what is wrong."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    s = preset.image_size
+    if len(image_shape) not in (3, 4) or tuple(image_shape[-3:]) != (s, s, 4):
+        raise ValueError(f"image must be [{s}, {s}, 4] or [B, {s}, {s}, 4] for preset {preset.name!r}, "
+                         f"got {tuple(image_shape)}")
+    if len(bank_shape) != 3 or tuple(bank_shape[1:]) != (NUM_STEPS, POSE_DIM):
+        raise ValueError(f"bank must be [N, {NUM_STEPS}, {POSE_DIM}] motions, got {tuple(bank_shape)}")
+    if bank_shape[0] < 1:
+        raise ValueError("the bank of motions is empty")
+    if not 1 <= n <= bank_shape[0]:
+        raise ValueError(f"n must be in [1, bank size {bank_shape[0]}], got {n}")
+    if R < 0:
+        raise ValueError(f"R must be >= 0, got {R}")
+
+
+# --------------------------------------------------------------------------- helpers
+_OPTIMISED = jnp.ones((POSE_DIM,), bool).at[TIME].set(False)
+
+
+def project_motions(motions: jax.Array) -> jax.Array:
+    """uv to [-1, 1], grasp to [0, 1], rotation re-orthonormalised; time untouched."""
+    rot = matrix_to_rot6d(rot6d_to_matrix(motions[..., ROT6D]))
+    return (motions.at[..., UV].set(jnp.clip(motions[..., UV], -1.0, 1.0))
+            .at[..., ROT6D].set(rot)
+            .at[..., GRASP].set(jnp.clip(motions[..., GRASP], 0.0, 1.0)))
+
+
+def chunked_energy(ebm: EBMNet, params, feature, motions, chunk: int) -> jax.Array:
+    """Energies of ``motions [N, 101, 11]`` under one image's ``F``, ``chunk`` at a time."""
+    n = motions.shape[0]
+    if n <= chunk:
+        return ebm.energy(params, feature, motions)
+    pad = (-n) % chunk
+    padded = jnp.concatenate([motions, jnp.zeros((pad,) + motions.shape[1:], motions.dtype)])
+    energies = jax.lax.map(lambda m: ebm.energy(params, feature, m), padded.reshape((-1, chunk) + motions.shape[1:]))
+    return energies.reshape(-1)[:n]
+
+
+def langevin(energy_fn, x0, key, step: float, iters: int, noise: bool = True):
+    """``iters`` steps of x <- x - step * grad + sqrt(2 step) * eta (eta = 0 without noise);
+    ``energy_fn`` maps ``x`` to per-candidate energies."""
+    grad_fn = jax.grad(lambda x: jnp.sum(energy_fn(x)))
+
+    def body(x, k):
+        x = x - step * grad_fn(x)
+        if noise:
+            x = x + jnp.sqrt(2.0 * step) * jax.random.normal(k, x.shape, x.dtype)
+        return x, None
+
+    x, _ = jax.lax.scan(body, x0, jax.random.split(key, iters))
+    return x
+
+
+def _masked(delta):
+    """Zero the update of the time channel."""
+    return jnp.where(_OPTIMISED, delta, 0.0)
+
+
+# --------------------------------------------------------------------------- one image
+def _predict_one(preset: Preset, method: str, n: int, R: int, chunk: int, settings: OptimizerSettings,
+                 models: Models, image, bank, key) -> Prediction:
+    ebm = EBMNet(preset)
+    f_ebm = ebm.encode(models.ebm, image)
+    energy = lambda m: ebm.energy(models.ebm, f_ebm, m)
+    bank_energy = chunked_energy(ebm, models.ebm, f_ebm, bank, chunk)
+    _, top = jax.lax.top_k(-bank_energy, n)
+    start = bank[top]
+
+    if method == "sort":
+        cands = start
+    elif method == "dmo":
+        dmo = DMONet(preset)
+        f_dmo = dmo.encode(models.dmo, image)
+        refined = dmo_unroll(dmo, models.dmo, f_dmo, start, R) if R > 0 else jnp.zeros((0,) + start.shape)
+        cands = jnp.concatenate([start[None], refined]).reshape((-1,) + start.shape[1:])
+    elif method in ("langevin", "gd"):
+        # time is never changed: its gradient is masked out before each update
+        masked_energy = lambda x: energy(start + _masked(x - start))
+        x = langevin(masked_energy, start, key, settings.langevin_step, settings.langevin_iters, method == "langevin")
+        cands = jnp.concatenate([start, project_motions(start + _masked(x - start))])
+    elif method in ("vaebm-l", "vaebm-s"):
+        vae = VAENet(preset.vae)
+        z0, _ = vae.encode(models.vae, start)
+        time = start[..., TIME]
+        decode = lambda z: vae.decode(models.vae, z).at[..., TIME].set(time)
+        step = settings.vaebm_l_step if method == "vaebm-l" else settings.vaebm_s_step
+        z = langevin(lambda z: energy(decode(z)) + 0.5 * jnp.sum(z**2, axis=-1), z0, key, step,
+                      settings.vaebm_iters, True)
+        cands = jnp.concatenate([start, project_motions(decode(z))])
+    elif method == "dfo":
+        x, sigma = start, settings.dfo_noise
+        for k in jax.random.split(key, settings.dfo_iters):
+            k_pick, k_noise = jax.random.split(k)
+            pick = jax.random.categorical(k_pick, -energy(x), shape=(n,))
+            x = project_motions(x[pick] + _masked(sigma * jax.random.normal(k_noise, x.shape)))
+            sigma *= settings.dfo_shrink
+        cands = jnp.concatenate([start, x])
+    else:  # check_request rejects unknown names; this guards future additions
+        raise ValueError(f"unhandled method {method!r}")
+
+    energies = chunked_energy(ebm, models.ebm, f_ebm, cands, chunk)
+    order = jnp.argsort(energies)
+    cands, energies = cands[order], energies[order]
+    return Prediction(cands[0], cands, energies)
+
+
+@functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings"))
+def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings):
+    one = functools.partial(_predict_one, preset, method, n, R, chunk, settings, models)
+    if image.ndim == 3:
+        return one(image, bank, key)
+    return jax.vmap(one, in_axes=(0, None, 0))(image, bank, jax.random.split(key, image.shape[0]))
+
+
+def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
+            method: str = "dmo", n: int = 8, R: int = 1, chunk: int = 256,
+            settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
+    """Predict motions for ``image`` with the trained networks of one task.
+
+    Args:
+      models: :class:`Models` (EBM parameters; DMO parameters for ``dmo``; VAE parameters
+        for ``vaebm-l`` / ``vaebm-s``).
+      image: ``[S, S, 4]`` float32 network image (``dmo_jax.data.network_image``) or a
+        batch ``[B, S, S, 4]`` (vmapped; every output gains a leading B axis).
+      bank: ``[N, 101, 11]`` training motions to score.
+      key: PRNG key (used by the stochastic methods).
+      preset: the networks' :class:`~dmo_jax.config.Preset`.
+      method: one of :data:`METHODS`.
+      n: candidates kept from the bank (1 <= n <= N).
+      R: DMO refinements (``dmo`` only; R = 0 returns the EBM's ranking).
+      chunk: bank motions scored at once (bounds memory).
+      settings: the baselines' step sizes and iteration counts.
+
+    Returns:
+      :class:`Prediction` — best motion, ranked candidates, energies.
+    """
+    check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R)
+    if method == "dmo" and models.dmo is None:
+        raise ValueError("method 'dmo' needs the DMO parameters (Models.dmo)")
+    if method in ("vaebm-l", "vaebm-s") and models.vae is None:
+        raise ValueError(f"method {method!r} needs the motion VAE parameters (Models.vae)")
+    if chunk < 1:
+        raise ValueError(f"chunk must be >= 1, got {chunk}")
+    return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
+                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)

@@ -1,0 +1,33 @@
+"""Shared test helpers: random parameters and motions without compiling ``init``."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
+
+
+def random_params(net, seed=0):
+    """Random parameters of the right shapes, drawn with numpy.
+
+    XLA:CPU takes 10-25 s to compile a network's ``init`` (one threefry + truncated normal
+    per array), longer than everything else here; the initialiser's structure is covered by
+    ``param_shapes`` (``jax.eval_shape`` of ``init``). Kernels get fan-in-scaled normals,
+    vectors (biases, norm scales, layer scales) O(0.1-1) values, so every layer matters.
+    """
+    rng = np.random.default_rng(seed)
+
+    def draw(x):
+        if len(x.shape) >= 2:
+            return rng.normal(0.0, 1.0 / np.sqrt(np.prod(x.shape[:-1])), x.shape).astype(np.float32)
+        return rng.uniform(0.1, 1.0, x.shape).astype(np.float32)
+
+    return jax.tree.map(lambda x: jnp.asarray(draw(x)), net.param_shapes())
+
+
+def random_motions(key, n):
+    """Plausible motions: uv in the image (some outside), grasp in [0, 1], time grid."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    m = jax.random.uniform(k1, (n, NUM_STEPS, POSE_DIM), minval=-1.1, maxval=1.1)
+    m = m.at[..., 9].set(jax.random.uniform(k2, (n, NUM_STEPS)))
+    m = m.at[..., 2].set(jax.random.uniform(k3, (n, NUM_STEPS), minval=0.3, maxval=1.5))
+    return m.at[..., 10].set(jnp.asarray(time_grid()))

@@ -1,0 +1,140 @@
+"""Success evaluation of learned methods (issue 6): bin/train_all -> bin/evaluate end to end on
+the tiny preset, sweeps, JSON, visualisations (the GIF decodes to the rendered frames)."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dmo_jax import visualize, workflow
+from dmo_jax.config import get_preset
+from envs import dataset, video
+from envs.tasks import get_task
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = get_preset("tiny")
+TASK = "reach_target"
+
+
+def _run(*args, check=True):
+    proc = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """Tiny datasets (16 train, 4 test episodes) and a tiny VAE + EBM + DMO trained on them."""
+    data, work = tmp_path_factory.mktemp("data"), tmp_path_factory.mktemp("runs")
+    task = get_task(TASK, TINY.image_size)
+    dataset.generate_split(task, "train", 16, data, batch=16, verbose=False)
+    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
+    workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
+    return data, work
+
+
+def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
+    data, work = trained
+    out = tmp_path / "r.json"
+    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
+                "--workdir", str(work), "--episodes", "4", "--n", "2", "--sweep", "R=0,2", "--backend", "mujoco",
+                "--json", str(out), "--save-viz", str(tmp_path / "viz"))
+    table = proc.stdout.splitlines()
+    assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
+    assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0", "dmo n=2 R=2"]
+    payload = json.loads(out.read_text())
+    assert payload["settings"]["method"] == "dmo" and payload["settings"]["preset"] == "tiny"
+    assert [(r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [(TASK, 2, 0, 4), (TASK, 2, 2, 4)]
+    for r in payload["results"]:
+        assert r["successes"] == sum(r["episode_success"]) and r["success_rate"] == r["successes"] / 4
+        assert all(0 <= c < 2 for c in r["candidate_used"])
+    pngs, gifs = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.gif"))
+    assert len(pngs) == len(gifs) == 4
+    assert gifs[0].read_bytes()[:6] == b"GIF89a"
+
+
+@pytest.mark.parametrize("method", ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"])
+def test_every_baseline_evaluates(trained, method):
+    from dmo_jax.evaluation import evaluate_method
+
+    data, work = trained
+    result = evaluate_method(TASK, method, preset=TINY, workdir=work, data_root=data, n=2, episodes=2,
+                             backend="mujoco")
+    assert result["method"] == method and result["episodes"] == 2 and 0 <= result["success_rate"] <= 1
+
+
+def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
+    data, _ = trained
+    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
+                "--workdir", str(tmp_path), check=False)
+    assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _decode_gif_frames(data: bytes, shape) -> list[np.ndarray]:
+    """A minimal GIF decoder (global palette, LZW) to check what write_gif wrote."""
+    palette = np.frombuffer(data[13:13 + 768], np.uint8).reshape(256, 3)
+    frames, pos = [], 13 + 768
+    while data[pos] != 0x3B:
+        if data[pos] == 0x21:  # extension: skip its sub-blocks
+            pos += 2
+            while data[pos]:
+                pos += data[pos] + 1
+            pos += 1
+            continue
+        assert data[pos] == 0x2C
+        pos += 10
+        min_size = data[pos]
+        pos += 1
+        stream = b""
+        while data[pos]:
+            stream += data[pos + 1:pos + 1 + data[pos]]
+            pos += data[pos] + 1
+        pos += 1
+        bits = np.unpackbits(np.frombuffer(stream, np.uint8), bitorder="little")
+        clear, end = 1 << min_size, (1 << min_size) + 1
+        width, table, out, prev, i = min_size + 1, None, [], None, 0
+        while True:
+            code = int(sum(int(bits[i + b]) << b for b in range(width)))
+            i += width
+            if code == clear:
+                table, width, prev = {k: [k] for k in range(clear)}, min_size + 1, None
+                continue
+            if code == end:
+                break
+            entry = table[code] if code in table else table[prev] + [table[prev][0]]
+            out.extend(entry)
+            if prev is not None:
+                table[len(table) + 2] = table[prev] + [entry[0]]
+                if len(table) + 2 == 1 << width and width < 12:
+                    width += 1
+            prev = code
+        frames.append(palette[np.asarray(out)].reshape(shape))
+    return frames
+
+
+def test_gif_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (3, 20, 33, 3), dtype=np.uint8)
+    path = tmp_path / "x.gif"
+    video.write_gif(path, frames)
+    decoded = _decode_gif_frames(path.read_bytes(), (20, 33, 3))
+    assert len(decoded) == 3
+    steps = np.array([255 / 5, 255 / 6, 255 / 5])  # palette spacing per channel
+    assert np.all(np.abs(np.stack(decoded).astype(int) - frames) <= steps / 2 + 1)
+    with pytest.raises(ValueError, match="uint8 frames"):
+        video.write_gif(path, frames.astype(np.float32))
+
+
+def test_trajectory_overlay_draws_the_chosen_path_in_white():
+    rgb = np.zeros((32, 32, 3), np.uint8)
+    cands = np.zeros((3, 101, 11), np.float32)
+    cands[:, :, 0] = np.linspace(-0.5, 0.5, 101)  # horizontal line through the centre
+    cands[1, :, 1] = 0.5
+    picture = visualize.trajectory_overlay(rgb, cands, chosen=1)
+    assert picture.shape == (128, 128, 3)
+    row = int(round((0.75 * 31 + 0.5) * 4 - 0.5))
+    assert (picture[row, 40:90] == 255).all()  # chosen candidate (v = 0.5) in white
+    assert picture[:, :, 2].max() == 255  # the lowest-energy candidate in blue

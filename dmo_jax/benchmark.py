@@ -21,6 +21,7 @@ change of load on the machine affects them alike.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import platform
 import statistics
@@ -334,4 +335,113 @@ def format_training_step_benchmark(r: dict) -> str:
     for name, m in r["models"].items():
         lines.append(f"{name:<6}{m['step_s']:>9.3f}{m['compile_s']:>11.1f}{m['steps']:>8}{m['train_s']:>10.0f}")
     lines.append(f"total incl. compile: {r['total_s']:.0f} s ({r['total_s'] / 60:.1f} min)")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- prediction
+def _predict_without_reuse(models, image, bank, *, preset, n: int, R: int, chunk: int):
+    """What ``predict(method="dmo")`` costs when F is *not* reused: every (image, motion)
+    evaluation runs its own encoder, as an EBM that consumes image and motion jointly must.
+    Same result as :func:`dmo_jax.inference.predict`; only for timing."""
+    from .networks import DMONet, EBMNet
+
+    ebm, dmo = EBMNet(preset), DMONet(preset)
+
+    def score(motions):
+        def one_chunk(m):
+            images = jnp.broadcast_to(image, (m.shape[0],) + image.shape)
+            feats = ebm.encode(models.ebm, images)
+            return jax.vmap(lambda f, x: ebm.energy(models.ebm, f, x[None])[0])(feats, m)
+
+        pad = (-motions.shape[0]) % chunk
+        padded = jnp.concatenate([motions, jnp.zeros((pad,) + motions.shape[1:], motions.dtype)])
+        return jax.lax.map(one_chunk, padded.reshape((-1, chunk) + motions.shape[1:])).reshape(-1)[:motions.shape[0]]
+
+    _, top = jax.lax.top_k(-score(bank), n)
+    cands = [bank[top]]
+    for _ in range(R):
+        images = jnp.broadcast_to(image, (n,) + image.shape)
+        feats = dmo.encode(models.dmo, images)
+        cands.append(jax.vmap(lambda f, x: dmo.refine(models.dmo, f, x[None])[0])(feats, cands[-1]))
+    cands = jnp.concatenate(cands)
+    energies = score(cands)
+    return cands[jnp.argmin(energies)]
+
+
+def _peak_bytes(fn, *args) -> int | None:
+    """Temporary + output + argument bytes of the compiled ``fn`` (XLA's memory analysis)."""
+    try:
+        m = jax.jit(fn).lower(*args).compile().memory_analysis()
+        return int(m.temp_size_in_bytes + m.output_size_in_bytes + m.argument_size_in_bytes)
+    except Exception:  # not every back-end reports it
+        return None
+
+
+def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 1000), repeats: int = 10,
+                      methods=("sort", "dmo", "gd", "langevin", "vaebm-l", "vaebm-s", "dfo"),
+                      method_n: int = 8, no_reuse_max_n: int = 64) -> dict:
+    """Latency of one image's :func:`dmo_jax.inference.predict` (median of ``repeats`` runs
+    after compilation), with randomly initialised networks of ``preset`` (the cost does not
+    depend on the weights) and a bank of ``bank_size`` random motions:
+
+    * ``dmo`` at R = 1 for every n in ``ns``, with F reused (as shipped) and without (the
+      encoder re-run per evaluation; up to n = ``no_reuse_max_n``);
+    * every method of ``methods`` at n = ``method_n`` (the baselines at the paper's 100
+      iterations).
+
+    Peak memory is XLA's compiled memory analysis (arguments + outputs + temporaries).
+    """
+    from .inference import Models, predict, project_motions
+    from .motion import time_grid
+    from .networks import DMONet, EBMNet
+    from .vae import VAENet
+
+    p = get_preset(preset)
+    rng = np.random.default_rng(0)
+    models = Models(EBMNet(p).init(jax.random.key(0)), DMONet(p).init(jax.random.key(1)),
+                    VAENet.from_preset(p).init(jax.random.key(2)))
+    image = jnp.asarray(rng.uniform(0, 1, (p.image_size, p.image_size, 4)), jnp.float32)
+    bank = np.concatenate([rng.uniform(-0.8, 0.8, (bank_size, 101, 2)), rng.uniform(0.8, 1.6, (bank_size, 101, 1)),
+                           rng.normal(size=(bank_size, 101, 6)), rng.uniform(0, 1, (bank_size, 101, 1)),
+                           np.broadcast_to(time_grid()[None, :, None], (bank_size, 101, 1))], axis=-1)
+    bank = project_motions(jnp.asarray(bank, jnp.float32))
+    key = jax.random.key(0)
+
+    def timed(fn):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        first = time.perf_counter() - t0
+        return {"median_ms": 1e3 * statistics.median(time_call(fn, repeats=repeats, warmup=1)),
+                "first_call_s": round(first, 2)}
+
+    rows = []
+    for n in ns:
+        run = lambda n=n: predict(models, image, bank, key, preset=p, method="dmo", n=n, R=1).motion
+        row = {"method": "dmo", "n": n, "R": 1, "reuse": True, **timed(run),
+               "peak_mb": _mb(_peak_bytes(lambda m, i, b, k: predict(m, i, b, k, preset=p, method="dmo", n=n, R=1),
+                                          models, image, bank, key))}
+        rows.append(row)
+        if n <= no_reuse_max_n:
+            plain = jax.jit(functools.partial(_predict_without_reuse, preset=p, n=n, R=1, chunk=min(n, 64) * 4))
+            rows.append({"method": "dmo", "n": n, "R": 1, "reuse": False, **timed(lambda: plain(models, image, bank)),
+                         "peak_mb": _mb(_peak_bytes(plain, models, image, bank))})
+    for method in methods:
+        run = lambda method=method: predict(models, image, bank, key, preset=p, method=method, n=method_n, R=1).motion
+        rows.append({"method": method, "n": method_n, "R": 1 if method == "dmo" else None, "reuse": True, **timed(run)})
+    return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows,
+            "cpu": _cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
+
+
+def _mb(nbytes):
+    return None if nbytes is None else round(nbytes / 2**20, 1)
+
+
+def format_predict_benchmark(r: dict) -> str:
+    lines = [f"predict(), preset {r['preset']!r} ({r['image_size']}px), bank {r['bank']}, {r['devices']}, "
+             f"load avg {r['loadavg_1min_at_end']:.2f}",
+             "| method | n | R | F reused | median ms | first call s | peak MB |", "|---|---|---|---|---|---|---|"]
+    for row in r["rows"]:
+        lines.append(f"| {row['method']} | {row['n']} | {row['R'] if row['R'] is not None else '–'} | "
+                     f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
+                     f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
     return "\n".join(lines)

@@ -1,4 +1,5 @@
-"""Library functions behind the method's commands (``bin/train_all``, ``bin/evaluate``)."""
+"""Library functions behind the method's commands (``bin/train_all``, ``bin/evaluate``,
+``bin/cost``, ``bin/benchmark``)."""
 from __future__ import annotations
 
 import argparse
@@ -40,14 +41,20 @@ def train_all_main(argv: list[str] | None = None) -> None:
     if args.dmo_steps is not None and args.dmo_steps < 1:
         _fail(f"--dmo-steps must be at least 1, got {args.dmo_steps}")
 
-    from envs.cli import task_names, default_data_dir
-    from envs.dataset import DatasetError
+    from envs.cli import check_output_file, default_data_dir, make_output_dir, non_negative, task_names
+    from envs.dataset import DatasetError, split_dir
     from dmo_jax import training, workflow
     from dmo_jax.config import get_preset
 
+    non_negative("--seed", args.seed)
     preset = get_preset(args.preset, args.variant)
     names = task_names(args.tasks)
     data = args.data or default_data_dir(preset.image_size)
+    if args.json:
+        check_output_file(args.json, "--json")
+    make_output_dir(args.workdir, "--workdir")
+    if any(not (split_dir(data, n, s) / "meta.json").is_file() for n in names for s in ("train", "test")):
+        make_output_dir(data, "--data")  # missing splits are generated there
     training.maybe_initialize_distributed()
     summaries, start = {}, time.perf_counter()
     for name in names:
@@ -55,8 +62,8 @@ def train_all_main(argv: list[str] | None = None) -> None:
         try:
             summaries[name] = workflow.train_task(name, preset, data, args.workdir, args.negatives, args.dmo_steps,
                                                   args.seed, log=lambda m: print(m, file=sys.stderr))
-        except (DatasetError, training.TrainingError) as err:
-            _fail(str(err))
+        except (DatasetError, training.TrainingError, ValueError, RuntimeError, OSError) as err:
+            _fail(f"{name}: {err}")
     print(_summary_table(summaries))
     print(f"total wall time {time.perf_counter() - start:.0f} s")
     if args.json:
@@ -118,9 +125,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-viz", metavar="DIR", help="per episode: trajectories PNG and rollout GIF")
     args = parser.parse_args(argv)
 
-    from envs.cli import default_data_dir, positive, task_names
+    from envs.cli import check_output_file, check_writable_dir, default_data_dir, non_negative, positive, task_names
 
     positive("--episodes", args.episodes)
+    non_negative("--seed", args.seed)
     positive("--n", args.n)
     if args.R < 0:
         _fail(f"--R must be >= 0, got {args.R}")
@@ -135,10 +143,14 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     if sweep and (min(sweep[1]) < (1 if sweep[0] == "n" else 0)):
         _fail(f"--sweep {args.sweep}: values must be >= {1 if sweep[0] == 'n' else 0}")
     names = task_names(args.task)
-    for path in filter(None, (args.json, args.save_viz)):
-        parent = Path(path).resolve().parent
-        if not parent.is_dir():
-            _fail(f"directory {parent} (for {path}) does not exist")
+    if args.json:
+        check_output_file(args.json, "--json")
+    if args.save_viz:
+        viz = Path(args.save_viz)
+        if viz.exists():
+            check_writable_dir(viz, f"--save-viz directory {viz}")
+        else:  # created when the first picture is written
+            check_writable_dir(viz.resolve().parent, f"directory {viz.resolve().parent} (for --save-viz {viz})")
 
     from dmo_jax import training
     from dmo_jax.config import get_preset
@@ -174,7 +186,11 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         rows.append((f"{args.method} {_setting_label(args.method, setting)}".strip(), rates))
     print(evaluation.success_table(rows))
     if args.json:
+        episodes, successes = sum(r["episodes"] for r in results), sum(r["successes"] for r in results)
         _write_json(args.json, {
+            # totals over every row (one task and setting: that row's numbers)
+            "task": names[0] if len(names) == 1 else names, "method": args.method, "episodes": episodes,
+            "successes": successes, "success_rate": successes / episodes,
             "settings": {"method": args.method, "preset": preset.name, "variant": preset.variant,
                          "negatives": args.negatives, "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
@@ -188,3 +204,57 @@ def _setting_label(method: str, setting: dict) -> str:
     if method in WORLD_METHODS:
         return ""
     return f"n={setting['n']}" + (f" R={setting['R']}" if method == "dmo" else "")
+
+
+def cost_main(argv: list[str] | None = None) -> None:
+    """``bin/cost``: paper Table 3 (EBM parameters and GMac per variant) from XLA's cost analysis."""
+    from dmo_jax.config import DEFAULT_PRESET, PRESETS
+
+    parser = argparse.ArgumentParser(
+        description="Paper Table 3 (EBM parameters and GMac, per variant) from XLA's cost analysis.")
+    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object {variant: {params_m, gmac_all, gmac_reuse}}")
+    args = parser.parse_args(argv)
+    from dmo_jax.cost import cost_table, format_table
+
+    table = cost_table(args.preset)
+    print(json.dumps(table) if args.json else format_table(args.preset, table))
+
+
+def benchmark_main(argv: list[str] | None = None) -> None:
+    """``bin/benchmark``: the speed measurements of BENCHMARKS.md."""
+    from dmo_jax.config import PRESETS
+    from envs.cli import positive
+
+    parser = argparse.ArgumentParser(description="Benchmarks of dmo-jax (see BENCHMARKS.md).")
+    parser.add_argument("--only", choices=["encoder", "train-step", "execution", "predict"], required=True,
+                        help="encoder: one image's encoder forward; train-step: VAE/EBM/DMO optimiser steps; "
+                        "execution: physics back-ends (native MuJoCo, MJX) on the scripted pick-up; "
+                        "predict: predict() latency per n and per method, with and without F reuse")
+    parser.add_argument("--episodes", type=int, default=64, help="episodes per batch (execution)")
+    parser.add_argument("--preset", choices=list(PRESETS), help="default: paper for encoder, cpu for train-step and predict")
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--torch-reference", action="store_true", help="also time a same-sized PyTorch U-Net")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    positive("--repeats", args.repeats)
+    positive("--episodes", args.episodes)
+
+    from dmo_jax import benchmark
+
+    if args.only == "encoder":
+        result = benchmark.encoder_benchmark(args.preset or "paper", args.repeats, with_torch=args.torch_reference)
+        text = benchmark.format_encoder_benchmark
+    elif args.only == "train-step":
+        result = benchmark.training_step_benchmark(args.preset or "cpu", args.repeats)
+        text = benchmark.format_training_step_benchmark
+    elif args.only == "predict":
+        result = benchmark.predict_benchmark(args.preset or "cpu", repeats=args.repeats)
+        text = benchmark.format_predict_benchmark
+    else:
+        from envs.benchmark import benchmark_execution
+
+        result = benchmark_execution(args.episodes, min(args.repeats, 3))
+        text = lambda rows: "\n".join(json.dumps(r) for r in rows)  # noqa: E731
+    print(json.dumps(result, indent=1) if args.json else text(result))

@@ -143,8 +143,8 @@ CPU = Preset(
     # misses of a first run (85 % top-1) were all other images' ground-truth motions lying
     # within ~1 px of the positive, so the 15 negatives lean to in-data ones (11 + 4 VAE).
     train=TrainConfig(
-        vae_steps=800, vae_batch=16, ebm_steps=800, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
-        dmo_steps=800, dmo_batch=12, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
+        vae_steps=600, vae_batch=16, ebm_steps=500, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
+        dmo_steps=600, dmo_batch=12, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
     ),
 )
 

@@ -24,6 +24,9 @@ def network_image(rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
             f"expected rgb uint8 [..., S, S, 3] and depth [..., S, S], got {rgb.dtype}{list(rgb.shape)} "
             f"and {depth.dtype}{list(depth.shape)}"
         )
+    bad = int(depth.size - np.count_nonzero(np.isfinite(depth)))
+    if bad:
+        raise ValueError(f"depth contains {bad} NaN or inf value(s); expected finite metric depth in metres")
     d = np.clip((depth - DEPTH_NEAR) / (DEPTH_FAR - DEPTH_NEAR), 0.0, 1.0)
     return np.concatenate([rgb.astype(np.float32) / 255.0, d[..., None]], axis=-1)
 

@@ -32,10 +32,12 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .config import Preset
+from .config import Preset, get_preset
 from .losses import dmo_unroll
-from .motion import GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, matrix_to_rot6d, rot6d_to_matrix
+from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, describe_array, matrix_to_rot6d,
+                     rot6d_to_matrix)
 from .networks import DMONet, EBMNet
 from .vae import VAENet
 
@@ -102,6 +104,78 @@ def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, 
         raise ValueError(f"n must be in [1, bank size {bank_shape[0]}], got {n}")
     if R < 0:
         raise ValueError(f"R must be >= 0, got {R}")
+
+
+def _is_concrete(x) -> bool:
+    """False for a tracer (``predict`` called inside the caller's ``jax.jit``): its values are
+    unknown, only its shape and dtype can be checked."""
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _count_non_finite(x) -> int:
+    a = np.asarray(x)
+    return int(a.size - np.count_nonzero(np.isfinite(a)))
+
+
+def _is_integer(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_arrays(image, bank, key) -> None:
+    """dtype checks (always) and value checks (concrete arrays only) of :func:`predict`'s
+    arrays; raises ``ValueError`` naming what is wrong and what was expected."""
+    if not jnp.issubdtype(image.dtype, jnp.floating):
+        raise ValueError(f"image must be floating-point (RGB in [0, 1] + depth mapped to [0, 1], see "
+                         f"dmo_jax.data.network_image), got {describe_array(image)}")
+    if not jnp.issubdtype(bank.dtype, jnp.floating):
+        raise ValueError(f"bank must be floating-point [N, {NUM_STEPS}, {POSE_DIM}] motions, got {describe_array(bank)}")
+    typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+    if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
+        raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
+    if _is_concrete(image):
+        bad = _count_non_finite(image)
+        if bad:
+            raise ValueError(f"image contains {bad} NaN or inf value(s); expected finite values in [0, 1]")
+        low, high = float(np.min(np.asarray(image))), float(np.max(np.asarray(image)))
+        if low < 0.0 or high > 1.0:
+            raise ValueError(f"image values must lie in [0, 1] (dmo_jax.data.network_image), got min {low:.4g}, "
+                             f"max {high:.4g}")
+    if _is_concrete(bank):
+        bad = _count_non_finite(bank)
+        if bad:
+            raise ValueError(f"bank contains {bad} NaN or inf value(s); expected finite motions")
+
+
+def _shape_table(tree) -> dict[str, tuple]:
+    leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
+    return {jax.tree_util.keystr(path): tuple(getattr(leaf, "shape", np.shape(leaf))) for path, leaf in leaves}
+
+
+@functools.lru_cache(maxsize=None)
+def _expected_shapes(preset: Preset, which: str) -> dict[str, tuple]:
+    if which == "vae":
+        return _shape_table(VAENet(preset.vae).param_shapes())
+    return _shape_table((EBMNet if which == "ebm" else DMONet)(preset).param_shapes())
+
+
+def check_params(params, preset: Preset, which: str) -> None:
+    """Raise ``ValueError`` unless ``params`` (``Models.<which>``) have the parameter names and
+    shapes of ``preset``'s network, e.g. a checkpoint of another preset or variant."""
+    got, want = _shape_table(params), _expected_shapes(preset, which)
+    if got == want:
+        return
+    wrong = [k for k in want if k in got and got[k] != want[k]]
+    missing, extra = sorted(set(want) - set(got)), sorted(set(got) - set(want))
+    parts = []
+    if wrong:
+        parts.append(f"{wrong[0]} is {list(got[wrong[0]])}, expected {list(want[wrong[0]])}")
+    if missing:
+        parts.append(f"{len(missing)} parameter(s) missing (e.g. {missing[0]})")
+    if extra:
+        parts.append(f"{len(extra)} unexpected parameter(s) (e.g. {extra[0]})")
+    detail = "; ".join(parts)
+    raise ValueError(f"Models.{which} do not fit preset {preset.name!r} (variant {preset.variant!r}, "
+                     f"{preset.image_size}px): {detail}; were they trained with another preset or variant?")
 
 
 # --------------------------------------------------------------------------- helpers
@@ -215,7 +289,7 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         batch ``[B, S, S, 4]`` (vmapped; every output gains a leading B axis).
       bank: ``[N, 101, 11]`` training motions to score.
       key: PRNG key (used by the stochastic methods).
-      preset: the networks' :class:`~dmo_jax.config.Preset`.
+      preset: the networks' :class:`~dmo_jax.config.Preset` (or its name).
       method: one of :data:`METHODS`.
       n: candidates kept from the bank (1 <= n <= N).
       R: DMO refinements (``dmo`` only; R = 0 returns the EBM's ranking).
@@ -224,13 +298,39 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
 
     Returns:
       :class:`Prediction` — best motion, ranked candidates, energies.
+
+    Raises:
+      ValueError: one line saying what is wrong and what was expected — unknown method or
+        preset, image not ``[S, S, 4]`` / ``[B, S, S, 4]`` floating-point in [0, 1], bank not
+        ``[N, 101, 11]`` floating-point, NaN or inf in image or bank, n outside [1, N],
+        R < 0, a key that is not one PRNG key, parameters missing or of another preset or
+        variant. Inside the caller's ``jax.jit`` the arrays are tracers: shapes and dtypes
+        are still checked, values (NaN, range) are not.
     """
+    if isinstance(preset, str):
+        preset = get_preset(preset)
+    if not isinstance(preset, Preset):
+        raise ValueError(f"preset must be a dmo_jax.config.Preset or a preset name, got {type(preset).__name__}")
+    for name, value in (("n", n), ("R", R), ("chunk", chunk)):
+        if not _is_integer(value):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+    image, bank, key = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank, key))
     check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R)
+    if not isinstance(models, Models):
+        raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
+    if models.ebm is None:
+        raise ValueError("every method needs the EBM parameters (Models.ebm)")
     if method == "dmo" and models.dmo is None:
         raise ValueError("method 'dmo' needs the DMO parameters (Models.dmo)")
     if method in ("vaebm-l", "vaebm-s") and models.vae is None:
         raise ValueError(f"method {method!r} needs the motion VAE parameters (Models.vae)")
     if chunk < 1:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
+    check_arrays(image, bank, key)
+    check_params(models.ebm, preset, "ebm")
+    if method == "dmo":
+        check_params(models.dmo, preset, "dmo")
+    if method in ("vaebm-l", "vaebm-s"):
+        check_params(models.vae, preset, "vae")
     return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
                         R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)

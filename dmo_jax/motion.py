@@ -169,3 +169,43 @@ def resample_episode(
         [uvz_s, rot_s[:, :2, :].reshape(num_steps, 6), grasp_s[:, None], grid[:, None]], axis=-1
     )
     return out.astype(np.float32)
+
+
+# --------------------------------------------------------------------------- input checks
+def describe_array(array) -> str:
+    """``"float32[101, 11]"``: dtype and shape of an array, for error messages."""
+    dtype = getattr(array, "dtype", None)
+    if dtype is None:
+        name = type(array).__name__
+    else:
+        try:
+            name = np.dtype(dtype).name
+        except TypeError:  # JAX's extended dtypes (PRNG keys: key<fry>) are not numpy dtypes
+            name = str(dtype)
+    return f"{name}{list(np.shape(array))}"
+
+
+def check_motions(motions, what: str = "motions", single: bool = False) -> np.ndarray:
+    """``motions`` as a float32 numpy array after checking them; raises ``ValueError`` with
+    one line saying what is wrong and what was expected.
+
+    Accepted: real floating-point ``[N, 101, 11]`` (with ``single``: one ``[101, 11]``
+    motion, or ``[1, 101, 11]``) holding only finite numbers.
+    """
+    if not hasattr(motions, "dtype") or not hasattr(motions, "shape"):
+        raise ValueError(f"{what} must be an array of motions, got {type(motions).__name__}")
+    layout = f"T = {NUM_STEPS} poses of {POSE_DIM} numbers, the [E, T, {POSE_DIM}] layout of dmo_jax.motion"
+    expected = f"[{NUM_STEPS}, {POSE_DIM}]" if single else f"[N, {NUM_STEPS}, {POSE_DIM}]"
+    if not jnp.issubdtype(motions.dtype, jnp.floating):
+        raise ValueError(f"{what} must be floating-point {expected} motions, got {describe_array(motions)}")
+    shape = tuple(motions.shape)
+    if single and len(shape) == 3 and shape[0] == 1:
+        shape = shape[1:]
+    want_ndim = 2 if single else 3
+    if len(shape) != want_ndim or shape[-2:] != (NUM_STEPS, POSE_DIM):
+        raise ValueError(f"{what} must be {expected} ({layout}), got {describe_array(motions)}")
+    array = np.asarray(motions, np.float32).reshape(shape)
+    bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+    if bad:
+        raise ValueError(f"{what} holds {bad} NaN or inf value(s); expected finite numbers")
+    return array

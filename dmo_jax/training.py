@@ -69,6 +69,15 @@ def data_mesh(devices=None) -> jax.sharding.Mesh:
     return jax.sharding.Mesh(devices, ("data",))
 
 
+def devices_for_batch(batch_size: int) -> list:
+    """All devices; in a single process, the most local devices that split the batch evenly
+    (a 12-image batch on 8 devices trains on 6)."""
+    devices = jax.devices()
+    if jax.process_count() > 1:
+        return devices
+    return devices[:max(k for k in range(1, len(devices) + 1) if batch_size % k == 0)]
+
+
 def replicate(mesh: jax.sharding.Mesh, tree):
     """Put a pytree on every device of ``mesh`` (parameters, optimiser state)."""
     return jax.device_put(tree, NamedSharding(mesh, P()))
@@ -199,6 +208,18 @@ def _check_meta(saved: dict, expected: dict, path: Path) -> None:
                             "use another --workdir or the matching settings")
 
 
+def _restore(mngr: ocp.CheckpointManager, step: int, args, path: Path):
+    """``mngr.restore`` with any failure (orbax raises many exception types for unreadable,
+    truncated or foreign checkpoints) turned into one :class:`TrainingError` line."""
+    try:
+        return mngr.restore(step, args=args)
+    except Exception as err:  # noqa: BLE001 - re-raised as TrainingError with the cause attached
+        lines = [l.strip() for l in str(err).splitlines() if l.strip()]
+        detail = f"{type(err).__name__}: {lines[0]}" if lines else type(err).__name__
+        raise TrainingError(f"cannot read checkpoint step {step} in {path} ({detail}); remove that step's "
+                            "directory to fall back to the previous checkpoint, or retrain") from err
+
+
 def load_params(workdir: str | Path, spec: ModelSpec):
     """Parameters and metadata of the latest checkpoint of the run in ``workdir`` (the directory
     given to :func:`fit`), checked against ``spec.meta``."""
@@ -209,13 +230,13 @@ def load_params(workdir: str | Path, spec: ModelSpec):
     step = mngr.latest_step()
     if step is None:
         raise TrainingError(f"no checkpoint in {path}")
-    restored = mngr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+    restored = _restore(mngr, step, ocp.args.Composite(meta=ocp.args.JsonRestore()), path)
     _check_meta(restored["meta"], spec.meta, path)
     abstract = jax.eval_shape(spec.init_fn, jax.random.key(0))
-    state = mngr.restore(step, args=ocp.args.Composite(
+    state = _restore(mngr, step, ocp.args.Composite(
         state=ocp.args.PyTreeRestore(item={"params": abstract},
                                      restore_args=jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), {"params": abstract}),
-                                     partial_restore=True)))
+                                     partial_restore=True)), path)
     return jax.tree.map(jnp.asarray, state["state"]["params"]), restored["meta"]
 
 
@@ -242,22 +263,26 @@ def fit(
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
-    mesh = data_mesh(devices)
+    mesh = data_mesh(devices if devices is not None else devices_for_batch(spec.batch_size))
     n_dev = mesh.devices.size
     if spec.batch_size % n_dev:
         raise TrainingError(f"batch size {spec.batch_size} is not divisible by the {n_dev} devices")
+    if spec.batch_size // jax.process_count() > len(dataset):
+        raise TrainingError(f"{spec.name}: batch size {spec.batch_size} exceeds the {len(dataset)} training "
+                            "episodes; generate more data (bin/generate_data --train N)")
     tx = make_optimizer(spec.config)
     meta = {**spec.meta, "steps": spec.steps, "batch_size": spec.batch_size, "seed": seed,
             "dataset": dataset.statistics()}
 
     mngr = _checkpoint_manager(workdir / "checkpoints", keep)
+    latest = mngr.latest_step()  # only committed checkpoints count; unfinished saves are ignored
+    if latest is not None:  # a checkpoint of other settings fails before anything is compiled
+        saved_meta = _restore(mngr, latest, ocp.args.Composite(meta=ocp.args.JsonRestore()), workdir)["meta"]
+        _check_meta(saved_meta, {k: v for k, v in meta.items() if k != "dataset"}, workdir)
     params = spec.init_fn(jax.random.fold_in(jax.random.key(seed), 0))
     state = TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
-    latest = mngr.latest_step()
     if latest is not None:
-        saved_meta = mngr.restore(latest, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-        _check_meta(saved_meta, {k: v for k, v in meta.items() if k != "dataset"}, workdir)
-        restored = mngr.restore(latest, args=ocp.args.Composite(state=ocp.args.StandardRestore(_host(state))))
+        restored = _restore(mngr, latest, ocp.args.Composite(state=ocp.args.StandardRestore(_host(state))), workdir)
         state = jax.tree.map(jnp.asarray, restored["state"])
     state = replicate(mesh, state)
     extra = replicate(mesh, extra) if extra is not None else None
@@ -279,10 +304,11 @@ def fit(
             raise TrainingError(
                 f"{spec.name}: {consecutive_skips} consecutive steps with non-finite loss or gradients; "
                 f"stopped. Last good checkpoint: step {mngr.latest_step()} in {workdir / 'checkpoints'}")
-        if done % log_every == 0 or done == end:
+        evaluate = spec.eval_fn is not None and (done == spec.steps or bool(eval_every and done % eval_every == 0))
+        if done % log_every == 0 or done == end or evaluate:
             last = {k: float(v) for k, v in metrics.items()}
             record = {"step": done, **last, "skipped": int(state.skipped), "time": round(time.perf_counter() - t0, 2)}
-            if spec.eval_fn is not None and (done == spec.steps or (eval_every and done % eval_every == 0)):
+            if evaluate:
                 record.update({f"heldout_{k}": float(v) for k, v in spec.eval_fn(state.params, extra).items()})
             _append_jsonl(metrics_path, record)
             if progress:
@@ -310,10 +336,18 @@ def _append_jsonl(path: Path, record: dict) -> None:
 
 
 def _truncate_metrics(path: Path, step: int) -> None:
-    """Drop metric lines written after the checkpoint being resumed (they will be redone)."""
+    """Drop metric lines written after the checkpoint being resumed (they will be redone), and a
+    last line torn by a crash in the middle of writing it."""
     if not path.exists():
         return
-    lines = [l for l in path.read_text().splitlines() if l.strip() and json.loads(l)["step"] <= step]
+
+    def kept(line: str) -> bool:
+        try:
+            return json.loads(line)["step"] <= step
+        except (ValueError, KeyError, TypeError):
+            return False
+
+    lines = [l for l in path.read_text().splitlines() if l.strip() and kept(l)]
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("".join(l + "\n" for l in lines))
     tmp.replace(path)

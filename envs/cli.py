@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -17,8 +16,64 @@ def default_data_dir(image_size: int) -> str:
 
 
 def fail(message: str) -> None:
-    print(f"error: {message}", file=sys.stderr)
+    """Print ``error: <message>`` as one line on stderr and exit with status 2."""
+    text = " ".join(line.strip() for line in str(message).splitlines() if line.strip())
+    print(f"error: {text}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def check_writable_dir(path: str | Path, label: str | None = None) -> Path:
+    """Fail unless ``path`` is an existing directory this process can create files in (tried
+    for real: permission bits say nothing for root or on read-only file systems). ``label``
+    names the directory in the message (default ``output directory <path>``)."""
+    import tempfile
+
+    path = Path(path)
+    label = label or f"output directory {path}"
+    if not path.exists():
+        fail(f"{label} does not exist")
+    if not path.is_dir():
+        fail(f"{label} is not a directory")
+    try:
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except OSError as err:
+        fail(f"{label} is not writable ({err.strerror or err}); expected a directory you can write to")
+    return path
+
+
+def check_output_file(path: str | Path, option: str) -> Path:
+    """Fail unless the file ``path`` (given with ``option``) can be written: not a directory,
+    inside an existing writable directory."""
+    path = Path(path)
+    if path.is_dir():
+        fail(f"{option} {path} is a directory; expected a file name")
+    check_writable_dir(path.resolve().parent, f"directory {path.resolve().parent} (for {option} {path})")
+    return path
+
+
+def make_output_dir(path: str | Path, option: str) -> Path:
+    """Create the directory ``path`` (given with ``option``) with its parents if needed; fail
+    unless that works and the directory is writable."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        fail(f"cannot create {option} directory {path}: {err.strerror or err}")
+    return check_writable_dir(path, f"{option} directory {path}")
+
+
+def image_size(name: str, value: int) -> None:
+    """Fail unless ``value`` is an image side the offscreen renderer supports."""
+    from envs.panda import MAX_IMAGE_SIZE
+
+    if not 1 <= value <= MAX_IMAGE_SIZE:
+        fail(f"{name} must be between 1 and {MAX_IMAGE_SIZE} pixels, got {value}")
+
+
+def non_negative(name: str, value: int) -> None:
+    if value < 0:
+        fail(f"{name} must be non-negative, got {value}")
 
 
 def render_main(argv: list[str] | None = None) -> None:
@@ -30,16 +85,18 @@ def render_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", help="a task name, a comma-separated list, or 'all': contact sheet (RGB)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the scenes (with --task)")
     args = parser.parse_args(argv)
+    image_size("--size", args.size)
+    non_negative("--seed", args.seed)
+    names = task_names(args.task) if args.task else None
     out = Path(args.out)
-    if not out.parent.resolve().is_dir():
-        fail(f"output directory {out.parent} does not exist")
+    check_output_file(out, "--out")
     import mujoco
 
     from envs import camera, demo
 
     try:
-        if args.task:
-            image = _contact_sheet(task_names(args.task), args.size, args.seed)
+        if names:
+            image = _contact_sheet(names, args.size, args.seed)
             what = f"contact sheet of {args.task}"
         else:
             world = demo.default_world(args.size)
@@ -83,16 +140,15 @@ def execute_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-motion", help="also write the executed motion to this .npy file")
     parser.add_argument("--json", help="write the outcome as JSON to this file")
     args = parser.parse_args(argv)
+    for path, what in ((args.save_motion, "--save-motion"), (args.json, "--json")):
+        if path:
+            check_output_file(path, what)
+    motion = load_motion_file(args.motion) if args.motion else None
 
     from envs import demo, execution
 
     world = demo.default_world()
-    if args.motion:
-        try:
-            motion = np.load(args.motion, allow_pickle=False)
-        except (OSError, ValueError) as err:
-            fail(f"cannot read motion file {args.motion}: {err}")
-    else:
+    if motion is None:
         motion = demo.pick_cube_motion(world)
     if args.save_motion:
         tmp = Path(args.save_motion + ".tmp.npy")
@@ -118,6 +174,24 @@ def execute_main(argv: list[str] | None = None) -> None:
         tmp = Path(args.json + ".tmp")
         tmp.write_text(json.dumps(verdict, indent=2))
         tmp.replace(args.json)
+
+
+def load_motion_file(path: str) -> np.ndarray:
+    """The ``[101, 11]`` float32 motion stored in the ``.npy`` file ``path``; fails (exit 2) with
+    one line if the file is missing, unreadable, not one array, or not a finite motion."""
+    from dmo_jax.motion import check_motions
+
+    try:
+        motion = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as err:
+        fail(f"cannot read motion file {path}: {err}; expected a .npy file written with numpy.save")
+    if not isinstance(motion, np.ndarray):
+        motion.close()
+        fail(f"motion file {path} holds several arrays (.npz); expected one [101, 11] array (.npy)")
+    try:
+        return check_motions(motion, f"the motion in {path}", single=True)
+    except ValueError as err:
+        fail(str(err))
 
 
 def task_names(arg: str) -> list[str]:
@@ -146,30 +220,29 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--image-size", type=int, default=256, help="image width = height (default 256)")
     parser.add_argument("--workers", type=int, default=None, help="physics threads (default: one per core)")
     args = parser.parse_args(argv)
-    for name in ("train", "test", "image_size"):
-        positive(f"--{name.replace('_', '-')}", getattr(args, name))
-    if args.seed < 0:
-        fail(f"--seed must be non-negative, got {args.seed}")
+    for name in ("train", "test"):
+        positive(f"--{name}", getattr(args, name))
+    image_size("--image-size", args.image_size)
+    non_negative("--seed", args.seed)
+    if args.workers is not None:
+        positive("--workers", args.workers)
     names = task_names(args.task)
-    out = Path(args.out or default_data_dir(args.image_size))
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        fail(f"cannot create output directory {out}: {err}")
-    if not os.access(out, os.W_OK):
-        fail(f"output directory {out} is not writable")
+    out = make_output_dir(args.out or default_data_dir(args.image_size), "--out")
 
     import time
 
-    from envs.dataset import generate_split, load_split
+    from envs.dataset import DatasetError, generate_split, load_split
     from envs.tasks import get_task
 
     for name in names:
         task = get_task(name, args.image_size)
         start = time.perf_counter()
-        for split, n in (("train", args.train), ("test", args.test)):
-            generate_split(task, split, n, out, base_seed=args.seed, workers=args.workers)
-        meta = load_split(out, name, "train").meta
+        try:
+            for split, n in (("train", args.train), ("test", args.test)):
+                generate_split(task, split, n, out, base_seed=args.seed, workers=args.workers)
+            meta = load_split(out, name, "train").meta
+        except (DatasetError, ValueError, RuntimeError, OSError) as err:
+            fail(f"{name}: {err}")
         print(f"{name}: {args.train} train + {args.test} test episodes at {args.image_size}px in "
               f"{time.perf_counter() - start:.1f} s (expert success {meta['expert_success_rate']:.1%}) -> {out / name}")
 
@@ -185,12 +258,13 @@ def task_report_main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     positive("--episodes", args.episodes)
     positive("--mjx-episodes", args.mjx_episodes)
+    names = task_names(args.task)
     from envs.dataset import DatasetError
     from envs.evaluation import task_suite_report
 
     try:
-        table = task_suite_report(args.data, task_names(args.task), args.episodes, args.mjx_episodes,
+        table = task_suite_report(args.data, names, args.episodes, args.mjx_episodes,
                                   log=lambda row: print(row, file=sys.stderr))
-    except DatasetError as err:
+    except (DatasetError, ValueError) as err:
         fail(str(err))
     print(table)

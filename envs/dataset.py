@@ -83,9 +83,14 @@ def load_split(root: str | Path, task: str, split: str) -> Split:
     try:
         meta = json.loads(meta_path.read_text())
         arrays = {f: np.load(path / f, mmap_mode="r", allow_pickle=False) for f in FILES}
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, EOFError) as err:
         raise DatasetError(f"corrupt dataset at {path}: {err}") from err
+    if not isinstance(meta, dict):
+        raise DatasetError(f"corrupt dataset at {path}: meta.json holds a {type(meta).__name__}, expected a JSON object")
     n, s = meta.get("episodes"), meta.get("image_size")
+    if not isinstance(n, int) or n < 1 or not isinstance(s, int) or s < 1:
+        raise DatasetError(f"corrupt dataset at {path}: meta.json says episodes={n!r}, image_size={s!r}; "
+                           "expected positive integers (a split holds at least one episode)")
     expected = {
         "rgb.npy": ((n, s, s, 3), np.uint8),
         "depth.npy": ((n, s, s), np.float32),
@@ -100,6 +105,11 @@ def load_split(root: str | Path, task: str, split: str) -> Split:
             )
     if meta.get("task") != task or meta.get("split") != split:
         raise DatasetError(f"{path} holds {meta.get('task')}/{meta.get('split')}, not {task}/{split}")
+    # Motions are small (N x 4.4 kB): every load checks them; images are checked where used.
+    bad = int(arrays["motions.npy"].size - np.count_nonzero(np.isfinite(arrays["motions.npy"])))
+    if bad:
+        raise DatasetError(f"corrupt dataset at {path}: motions.npy contains {bad} NaN or inf value(s); "
+                           "expected finite motions (regenerate the split)")
     return Split(arrays["rgb.npy"], arrays["depth.npy"], arrays["motions.npy"], arrays["seeds.npy"], meta)
 
 
@@ -175,8 +185,13 @@ def generate_split(
                 "successes": np.int64(result.success.sum()),
             }
             path = partial / f"chunk_{next_batch:06d}.npz"
-            tmp = partial / f"chunk_{next_batch:06d}.tmp.npz"
-            np.savez(tmp, **chunk)
+            # The temporary name must not match ``chunk_*.npz``: a run killed while writing
+            # leaves it behind, and the resume must neither count nor load it.
+            tmp = partial / f"chunk_{next_batch:06d}.npz.tmp"
+            with open(tmp, "wb") as f:
+                np.savez(f, **chunk)
+                f.flush()
+                os.fsync(f.fileno())
             tmp.replace(path)
             kept += len(ok)
             next_batch += 1

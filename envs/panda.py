@@ -21,6 +21,8 @@ CAMERA_NAME = "front"
 CAMERA_POS = (1.65, 0.0, 1.88)
 CAMERA_TARGET = (0.3, 0.0, TABLE_HEIGHT + 0.12)
 CAMERA_FOVY = 40.0
+#: Largest image side the offscreen framebuffer can render (the scene's ``offwidth`` / ``offheight``).
+MAX_IMAGE_SIZE = 512
 
 ARM_JOINTS = tuple(f"joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("finger_left", "finger_right")
@@ -181,7 +183,7 @@ def scene_xml(objects: str = "", pairs: tuple[tuple[str, str], ...] = (), extra_
     <flag eulerdamp="disable"/>
   </option>
   <visual>
-    <global offwidth="512" offheight="512"/>
+    <global offwidth="{MAX_IMAGE_SIZE}" offheight="{MAX_IMAGE_SIZE}"/>
     <quality shadowsize="2048"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5" specular="0.1 0.1 0.1"/>
   </visual>

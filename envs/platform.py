@@ -30,3 +30,20 @@ def configure_jax_for_cpu() -> None:
         except (ImportError, AttributeError):
             pass
     os.environ["XLA_FLAGS"] = " ".join([current, *missing]).strip()
+
+
+def expose_cpu_cores_as_devices() -> None:
+    """Make XLA's host platform present one device per core (``bin/train_all``).
+
+    XLA:CPU runs most of a training step's small ops on one thread; data parallelism over
+    one device per core uses the others (measured on 2 cores, cpu preset: VAE step 0.50 ->
+    0.22 s, EBM step 1.29 -> 0.73 s). Only the host platform reads the flag, so it is
+    harmless on accelerators; a device count the user set is kept. Must run before JAX
+    initialises its backend.
+    """
+    current = os.environ.get("XLA_FLAGS", "")
+    if "--xla_force_host_platform_device_count" in current:
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if cores > 1:
+        os.environ["XLA_FLAGS"] = f"{current} --xla_force_host_platform_device_count={cores}".strip()

@@ -37,8 +37,9 @@ def test_gram_schmidt_gives_rotation(r6):
     if np.linalg.norm(a1) < 1e-2 or np.linalg.norm(np.cross(a1, a2)) < 1e-2 * np.linalg.norm(a1):
         return
     rot = np.asarray(M.rot6d_to_matrix(r6.astype(np.float32)), np.float64)
-    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)
-    assert np.linalg.det(rot) == pytest.approx(1.0, abs=1e-5)
+    # float32 orthogonality error grows like eps / sin(angle(a1, a2)); the angle is >= 1e-2 here
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-4)
+    assert np.linalg.det(rot) == pytest.approx(1.0, abs=1e-4)
     # The first row keeps the direction of a1.
     np.testing.assert_allclose(rot[0], a1 / np.linalg.norm(a1), atol=1e-5)
 

@@ -50,9 +50,9 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     assert [(r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [(TASK, 2, 0, 4), (TASK, 2, 2, 4)]
     for r in payload["results"]:
         assert r["successes"] == sum(r["episode_success"]) and r["success_rate"] == r["successes"] / 4
+        assert all(0 <= c < 2 for c in r["candidate_used"])
     assert payload["task"] == TASK and payload["episodes"] == 8
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
-        assert all(0 <= c < 2 for c in r["candidate_used"])
     pngs, gifs = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.gif"))
     assert len(pngs) == len(gifs) == 4
     assert gifs[0].read_bytes()[:6] == b"GIF89a"

@@ -339,6 +339,12 @@ def format_training_step_benchmark(r: dict) -> str:
 
 
 # --------------------------------------------------------------------------- prediction
+def _distinct_copies(image, n: int):
+    """``n`` copies of ``image`` that XLA cannot prove equal (so it cannot encode once and
+    broadcast); the 1e-30 offsets vanish when added to the pixel values."""
+    return image[None] + jnp.arange(n, dtype=image.dtype)[:, None, None, None] * 1e-30
+
+
 def _predict_without_reuse(models, image, bank, *, preset, n: int, R: int, chunk: int):
     """What ``predict(method="dmo")`` costs when F is *not* reused: every (image, motion)
     evaluation runs its own encoder, as an EBM that consumes image and motion jointly must.
@@ -349,7 +355,7 @@ def _predict_without_reuse(models, image, bank, *, preset, n: int, R: int, chunk
 
     def score(motions):
         def one_chunk(m):
-            images = jnp.broadcast_to(image, (m.shape[0],) + image.shape)
+            images = _distinct_copies(image, m.shape[0])
             feats = ebm.encode(models.ebm, images)
             return jax.vmap(lambda f, x: ebm.energy(models.ebm, f, x[None])[0])(feats, m)
 
@@ -360,8 +366,7 @@ def _predict_without_reuse(models, image, bank, *, preset, n: int, R: int, chunk
     _, top = jax.lax.top_k(-score(bank), n)
     cands = [bank[top]]
     for _ in range(R):
-        images = jnp.broadcast_to(image, (n,) + image.shape)
-        feats = dmo.encode(models.dmo, images)
+        feats = dmo.encode(models.dmo, _distinct_copies(image, n))
         cands.append(jax.vmap(lambda f, x: dmo.refine(models.dmo, f, x[None])[0])(feats, cands[-1]))
     cands = jnp.concatenate(cands)
     energies = score(cands)

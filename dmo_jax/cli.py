@@ -16,9 +16,9 @@ def _fail(message: str) -> None:
 
 
 def _write_json(path: str, payload) -> None:
-    tmp = Path(path + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2))
-    tmp.replace(path)
+    from envs.cli import write_json
+
+    write_json(path, payload)
 
 
 def train_all_main(argv: list[str] | None = None) -> None:
@@ -258,3 +258,40 @@ def benchmark_main(argv: list[str] | None = None) -> None:
         result = benchmark_execution(args.episodes, min(args.repeats, 3))
         text = lambda rows: "\n".join(json.dumps(r) for r in rows)  # noqa: E731
     print(json.dumps(result, indent=1) if args.json else text(result))
+
+
+def ebm_misses_main(argv: list[str] | None = None) -> None:
+    """``bin/ebm_misses``: the EBM's held-out top-1, every miss with its winner and distance."""
+    from dmo_jax.config import DEFAULT_PRESET, PRESETS
+
+    parser = argparse.ArgumentParser(description="Explain the EBM's held-out misses (bin/train_all's ranking).")
+    parser.add_argument("--task", required=True, help="one task name")
+    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
+    parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
+    args = parser.parse_args(argv)
+
+    from envs.cli import default_data_dir, task_names
+
+    names = task_names(args.task)
+    if len(names) != 1:
+        _fail(f"--task takes one task name, got {args.task!r}")
+
+    from dmo_jax.config import get_preset
+    from dmo_jax.evaluation import ebm_heldout_misses
+    from dmo_jax.training import TrainingError
+    from envs.dataset import DatasetError
+
+    preset = get_preset(args.preset)
+    try:
+        result = ebm_heldout_misses(names[0], preset=preset, workdir=args.workdir,
+                                    data_root=args.data or default_data_dir(preset.image_size))
+    except (DatasetError, TrainingError) as err:
+        _fail(str(err))
+    print(json.dumps(result, indent=1))
+    distances = sorted(m["distance_m"] for m in result["misses"])
+    if distances:
+        print(f"top-1 {result['top1']:.0%}; {len(distances)} misses, won by "
+              f"{sorted({m['winner'] for m in result['misses']})}; winner-positive distance "
+              f"{distances[0]:.3f}-{distances[-1]:.3f} m, median {distances[len(distances) // 2]:.3f} m",
+              file=sys.stderr)

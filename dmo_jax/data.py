@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .motion import count_non_finite
+
 DEPTH_NEAR, DEPTH_FAR = 0.5, 3.0
 
 
@@ -24,7 +26,7 @@ def network_image(rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
             f"expected rgb uint8 [..., S, S, 3] and depth [..., S, S], got {rgb.dtype}{list(rgb.shape)} "
             f"and {depth.dtype}{list(depth.shape)}"
         )
-    bad = int(depth.size - np.count_nonzero(np.isfinite(depth)))
+    bad = count_non_finite(depth)
     if bad:
         raise ValueError(f"depth contains {bad} NaN or inf value(s); expected finite metric depth in metres")
     d = np.clip((depth - DEPTH_NEAR) / (DEPTH_FAR - DEPTH_NEAR), 0.0, 1.0)

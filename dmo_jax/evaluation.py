@@ -67,28 +67,23 @@ def evaluate_method(task_name: str, method: str, *, preset: Preset, workdir, dat
     return {"method": method, "n": n, "R": R, **result, "predict_seconds": round(predict_seconds, 2)}
 
 
-def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root, negatives: str = "in-data+vae",
-                       seed: int = 1234) -> dict:
-    """The held-out EBM ranking of ``bin/train_all`` (each test motion among 31 other test
-    motions and 32 VAE samples at 2 sigma), with every miss explained: which kind of negative
-    won and how far its poses lie from the positive's (mean 3-D distance, metres)."""
-    import dataclasses
-
+def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
+                       negatives: str = "in-data+vae") -> dict:
+    """The held-out EBM ranking of ``bin/train_all`` (``training.heldout_ebm_candidates``), with
+    every miss explained: which kind of negative won and how far its poses lie from the
+    positive's (mean 3-D distance, metres)."""
     import jax.numpy as jnp
 
     from . import losses, training
     from .networks import EBMNet
-    from .vae import VAENet
     from .workflow import RunPaths, load_task_data
 
     _, test, (intrinsics, size) = load_task_data(task_name, data_root, preset, generate=False)
     paths = RunPaths.of(workdir, task_name, preset)
     ebm_params, _ = training.load_params(paths.ebm(preset.variant, negatives), training.ebm_spec(preset, negatives))
     vae_params, _ = training.load_params(paths.vae(), training.vae_spec(preset))
-    ebm, vae = EBMNet(preset), VAENet.from_preset(preset)
-    counts = dataclasses.replace(preset.train, ebm_gt_negatives=31, ebm_vae_negatives=32)
-    motions = jnp.asarray(test.motions)
-    cands = losses.ebm_candidates(vae, vae_params, motions, jax.random.key(seed), counts, "in-data+vae")
+    ebm = EBMNet(preset)
+    cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)
     feature = ebm.encode(ebm_params, jnp.asarray(test.images))
     energies = jax.vmap(lambda f, c: ebm.energy(ebm_params, f, c))(feature, cands)
     winners = np.asarray(jnp.argmin(energies, axis=-1))

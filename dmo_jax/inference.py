@@ -36,7 +36,7 @@ import numpy as np
 
 from .config import Preset, get_preset
 from .losses import dmo_unroll
-from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, describe_array, matrix_to_rot6d,
+from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, describe_array, matrix_to_rot6d,
                      rot6d_to_matrix)
 from .networks import DMONet, EBMNet
 from .vae import VAENet
@@ -112,11 +112,6 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _count_non_finite(x) -> int:
-    a = np.asarray(x)
-    return int(a.size - np.count_nonzero(np.isfinite(a)))
-
-
 def _is_integer(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
@@ -133,7 +128,7 @@ def check_arrays(image, bank, key) -> None:
     if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
         raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
     if _is_concrete(image):
-        bad = _count_non_finite(image)
+        bad = count_non_finite(image)
         if bad:
             raise ValueError(f"image contains {bad} NaN or inf value(s); expected finite values in [0, 1]")
         low, high = float(np.min(np.asarray(image))), float(np.max(np.asarray(image)))
@@ -141,7 +136,7 @@ def check_arrays(image, bank, key) -> None:
             raise ValueError(f"image values must lie in [0, 1] (dmo_jax.data.network_image), got min {low:.4g}, "
                              f"max {high:.4g}")
     if _is_concrete(bank):
-        bad = _count_non_finite(bank)
+        bad = count_non_finite(bank)
         if bad:
             raise ValueError(f"bank contains {bad} NaN or inf value(s); expected finite motions")
 

@@ -172,6 +172,12 @@ def resample_episode(
 
 
 # --------------------------------------------------------------------------- input checks
+def count_non_finite(array) -> int:
+    """Number of NaN and inf entries of ``array`` (any array-like, read on the host)."""
+    a = np.asarray(array)
+    return int(a.size - np.count_nonzero(np.isfinite(a)))
+
+
 def describe_array(array) -> str:
     """``"float32[101, 11]"``: dtype and shape of an array, for error messages."""
     dtype = getattr(array, "dtype", None)
@@ -205,7 +211,7 @@ def check_motions(motions, what: str = "motions", single: bool = False) -> np.nd
     if len(shape) != want_ndim or shape[-2:] != (NUM_STEPS, POSE_DIM):
         raise ValueError(f"{what} must be {expected} ({layout}), got {describe_array(motions)}")
     array = np.asarray(motions, np.float32).reshape(shape)
-    bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+    bad = count_non_finite(array)
     if bad:
         raise ValueError(f"{what} holds {bad} NaN or inf value(s); expected finite numbers")
     return array

@@ -123,6 +123,15 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None) -> ModelSpec:
                      cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
 
 
+def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
+    """The EBM's held-out ranking problem: each of ``motions [N, 101, 11]`` first, then the
+    paper's 63 negatives (31 other held-out motions + 32 VAE samples at 2 sigma), whatever
+    counts the preset trains with; a fixed key, so every evaluation ranks the same sets."""
+    counts = dataclasses.replace(preset.train, ebm_gt_negatives=31, ebm_vae_negatives=32)
+    return losses.ebm_candidates(VAENet.from_preset(preset), vae_params, jnp.asarray(motions),
+                                 jax.random.key(1234), counts, "in-data+vae")
+
+
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
              augment: bool = True) -> ModelSpec:
     """``extra`` = the trained VAE's parameters (they make the negatives)."""
@@ -137,11 +146,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         return losses.ebm_loss(net, params, images, cands, k_loss)
 
     def eval_fn(params, vae_params):
-        # Held-out: the positive among the paper's 63 negatives (31 in-data + 32 VAE at 2 sigma),
-        # whatever counts the preset trains with; fixed key.
-        m = jnp.asarray(heldout.motions)
-        paper_counts = dataclasses.replace(cfg, ebm_gt_negatives=31, ebm_vae_negatives=32)
-        cands = losses.ebm_candidates(vae, vae_params, m, jax.random.key(1234), paper_counts, "in-data+vae")
+        cands = heldout_ebm_candidates(preset, vae_params, heldout.motions)
         return jax.jit(lambda p, i, c: losses.ebm_eval(net, p, i, c))(params, jnp.asarray(heldout.images), cands)
 
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,

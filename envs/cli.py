@@ -22,6 +22,13 @@ def fail(message: str) -> None:
     raise SystemExit(2)
 
 
+def write_json(path: str | Path, payload) -> None:
+    """Write ``payload`` as indented JSON to ``path`` atomically."""
+    from envs.dataset import atomic_write_text
+
+    atomic_write_text(Path(path), json.dumps(payload, indent=2))
+
+
 def check_writable_dir(path: str | Path, label: str | None = None) -> Path:
     """Fail unless ``path`` is an existing directory this process can create files in (tried
     for real: permission bits say nothing for root or on read-only file systems). ``label``
@@ -171,9 +178,7 @@ def execute_main(argv: list[str] | None = None) -> None:
     }
     print(json.dumps(verdict))
     if args.json:
-        tmp = Path(args.json + ".tmp")
-        tmp.write_text(json.dumps(verdict, indent=2))
-        tmp.replace(args.json)
+        write_json(args.json, verdict)
 
 
 def load_motion_file(path: str) -> np.ndarray:

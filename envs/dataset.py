@@ -106,7 +106,7 @@ def load_split(root: str | Path, task: str, split: str) -> Split:
     if meta.get("task") != task or meta.get("split") != split:
         raise DatasetError(f"{path} holds {meta.get('task')}/{meta.get('split')}, not {task}/{split}")
     # Motions are small (N x 4.4 kB): every load checks them; images are checked where used.
-    bad = int(arrays["motions.npy"].size - np.count_nonzero(np.isfinite(arrays["motions.npy"])))
+    bad = motion_lib.count_non_finite(arrays["motions.npy"])
     if bad:
         raise DatasetError(f"corrupt dataset at {path}: motions.npy contains {bad} NaN or inf value(s); "
                            "expected finite motions (regenerate the split)")
@@ -122,7 +122,8 @@ def _atomic_save(path: Path, array: np.ndarray) -> None:
     tmp.replace(path)
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` under a temporary name, then rename: never a half file."""
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
@@ -229,7 +230,7 @@ def generate_split(
         "expert_attempts": attempts,
         "expert_success_rate": successes / attempts,
     }
-    _atomic_write_text(assembling / "meta.json", json.dumps(meta, indent=2))
+    atomic_write_text(assembling / "meta.json", json.dumps(meta, indent=2))
     assembling.replace(final)
     shutil.rmtree(partial, ignore_errors=True)
     return final

@@ -45,8 +45,10 @@ def train_all_main(argv: list[str] | None = None) -> None:
     from envs.dataset import DatasetError, split_dir
     from dmo_jax import training, workflow
     from dmo_jax.config import get_preset
+    from envs.platform import enable_compilation_cache
 
     non_negative("--seed", args.seed)
+    enable_compilation_cache()
     preset = get_preset(args.preset, args.variant)
     names = task_names(args.tasks)
     data = args.data or default_data_dir(preset.image_size)
@@ -157,7 +159,9 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     from dmo_jax.evaluation import evaluate_method
     from envs import evaluation
     from envs.dataset import DatasetError
+    from envs.platform import enable_compilation_cache
 
+    enable_compilation_cache()
     preset = get_preset(args.preset, args.variant)
     data = args.data or default_data_dir(preset.image_size)
     settings = [dict(n=args.n, R=args.R)]
@@ -281,7 +285,9 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     from dmo_jax.evaluation import ebm_heldout_misses
     from dmo_jax.training import TrainingError
     from envs.dataset import DatasetError
+    from envs.platform import enable_compilation_cache
 
+    enable_compilation_cache()
     preset = get_preset(args.preset)
     try:
         result = ebm_heldout_misses(names[0], preset=preset, workdir=args.workdir,

@@ -115,9 +115,13 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None) -> ModelSpec:
     def loss_fn(params, batch, key, extra):
         return losses.vae_loss(net, params, batch["motions"], key, cfg)
 
+    @jax.jit
+    def evaluate(params, motions):
+        recon = net.decode(params, net.encode(params, motions)[0])
+        return {f"recon_{k}": v for k, v in losses.motion_errors(recon, motions).items()}
+
     def eval_fn(params, extra):
-        recon = net.decode(params, net.encode(params, jnp.asarray(heldout.motions))[0])
-        return {f"recon_{k}": v for k, v in losses.motion_errors(recon, jnp.asarray(heldout.motions)).items()}
+        return evaluate(params, jnp.asarray(heldout.motions))
 
     return ModelSpec("vae", net.init, loss_fn, eval_fn if heldout is not None else None,
                      cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
@@ -145,9 +149,12 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives)
         return losses.ebm_loss(net, params, images, cands, k_loss)
 
+    @jax.jit  # compiled once per run, the VAE's negatives included
+    def evaluate(params, vae_params, images, motions):
+        return losses.ebm_eval(net, params, images, heldout_ebm_candidates(preset, vae_params, motions))
+
     def eval_fn(params, vae_params):
-        cands = heldout_ebm_candidates(preset, vae_params, heldout.motions)
-        return jax.jit(lambda p, i, c: losses.ebm_eval(net, p, i, c))(params, jnp.asarray(heldout.images), cands)
+        return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions))
 
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
@@ -168,12 +175,13 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
         inputs = jax.lax.stop_gradient(vae.sample_around(vae_params, batch["motions"], k_in, cfg.dmo_input_sigma))
         return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight)
 
+    @jax.jit  # compiled once per run, the VAE's inputs included
+    def evaluate(params, vae_params, images, motions):
+        inputs = vae.sample_around(vae_params, motions, jax.random.key(4321), cfg.dmo_input_sigma)
+        return losses.dmo_eval(net, params, images, inputs, motions, cfg.dmo_infer_iters, *heldout_camera, r)
+
     def eval_fn(params, vae_params):
-        m = jnp.asarray(heldout.motions)
-        inputs = vae.sample_around(vae_params, m, jax.random.key(4321), cfg.dmo_input_sigma)
-        k, size = heldout_camera
-        return jax.jit(lambda p, i, x, t: losses.dmo_eval(net, p, i, x, t, cfg.dmo_infer_iters, k, size, r))(
-            params, jnp.asarray(heldout.images), inputs, m)
+        return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions))
 
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
                      cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
@@ -299,16 +307,25 @@ def fit(
     end = spec.steps if stop_after is None else min(stop_after, spec.steps)
     progress = Progress(f"train {spec.name}", spec.steps, initial=start) if verbose and start < end else None
     base_key = jax.random.key(seed)
-    t0, consecutive_skips, last = time.perf_counter(), 0, {}
+    t0, consecutive_skips, last, pending = time.perf_counter(), 0, {}, None
+
+    def count_skips(finite, skips):
+        skips = 0 if bool(finite) else skips + 1
+        if skips > max_consecutive_skips:
+            raise TrainingError(
+                f"{spec.name}: {skips} consecutive steps with non-finite loss or gradients; "
+                f"stopped. Last good checkpoint: step {mngr.latest_step()} in {workdir / 'checkpoints'}")
+        return skips
+
     for step in range(start, end):
         local = dataset.batch(seed, step, spec.batch_size // jax.process_count(), jax.process_index())
         state, metrics = step_fn(state, shard_batch(mesh, local), jax.random.fold_in(base_key, step + 1), extra)
         done = step + 1
-        consecutive_skips = 0 if bool(metrics["finite"]) else consecutive_skips + 1
-        if consecutive_skips > max_consecutive_skips:
-            raise TrainingError(
-                f"{spec.name}: {consecutive_skips} consecutive steps with non-finite loss or gradients; "
-                f"stopped. Last good checkpoint: step {mngr.latest_step()} in {workdir / 'checkpoints'}")
+        # The previous step's flag is read only now, so the host prepares this batch while
+        # the device still runs the previous step (a skipped step leaves the state as it was).
+        if pending is not None:
+            consecutive_skips = count_skips(pending, consecutive_skips)
+        pending = metrics["finite"]
         evaluate = spec.eval_fn is not None and (done == spec.steps or bool(eval_every and done % eval_every == 0))
         if done % log_every == 0 or done == end or evaluate:
             last = {k: float(v) for k, v in metrics.items()}
@@ -321,6 +338,8 @@ def fit(
         if done % checkpoint_every == 0 or done == end:
             mngr.save(done, args=ocp.args.Composite(state=ocp.args.StandardSave(_host(state)),
                                                     meta=ocp.args.JsonSave(meta)))
+    if pending is not None:
+        consecutive_skips = count_skips(pending, consecutive_skips)
     mngr.wait_until_finished()
     if progress:
         progress.close()

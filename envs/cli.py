@@ -158,9 +158,9 @@ def execute_main(argv: list[str] | None = None) -> None:
     if motion is None:
         motion = demo.pick_cube_motion(world)
     if args.save_motion:
-        tmp = Path(args.save_motion + ".tmp.npy")
-        np.save(tmp, motion)
-        tmp.replace(args.save_motion)
+        from envs.dataset import atomic_save
+
+        atomic_save(Path(args.save_motion), motion)
     try:
         result = execution.execute(world, motion, world.default_scenes(1), demo.cube_lifted(world), args.backend)
     except ValueError as err:

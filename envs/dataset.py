@@ -113,7 +113,8 @@ def load_split(root: str | Path, task: str, split: str) -> Split:
     return Split(arrays["rgb.npy"], arrays["depth.npy"], arrays["motions.npy"], arrays["seeds.npy"], meta)
 
 
-def _atomic_save(path: Path, array: np.ndarray) -> None:
+def atomic_save(path: Path, array: np.ndarray) -> None:
+    """Write ``array`` as ``.npy`` under a temporary name, synced, then rename: never a half file."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
         np.save(f, array, allow_pickle=False)
@@ -214,7 +215,7 @@ def generate_split(
     shutil.rmtree(assembling, ignore_errors=True)
     assembling.mkdir(parents=True)
     for k, arrays in parts.items():
-        _atomic_save(assembling / f"{k}.npy", np.concatenate(arrays)[:episodes])
+        atomic_save(assembling / f"{k}.npy", np.concatenate(arrays)[:episodes])
     cam = task.world.camera
     meta = {
         "task": task.name,

@@ -11,7 +11,7 @@ from dmo_jax.benchmark import plain_encoder_forward
 from dmo_jax.config import PRESETS, VARIANTS, get_preset
 from dmo_jax.encoder import ConvNeXtUNet
 from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
-from dmo_jax.networks import DMONet, EBMNet, attention, bilinear_sample, count_params
+from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
 from dmo_jax.vae import VAENet
 from helpers import random_motions, random_params
 
@@ -150,27 +150,6 @@ def test_dmo_with_zeroed_final_layers_returns_input():
     out = refine(params, feature, motions.at[..., 9].set(5.0))
     np.testing.assert_array_equal(out[..., 10], motions[..., 10])
     assert np.all((out[..., 9] >= 0) & (out[..., 9] <= 1))
-
-
-@pytest.mark.parametrize("with_dropout", [False, True])
-def test_attention_hand_written_gradient_equals_autodiff(with_dropout):
-    """The custom VJP of attention gives autodiff's gradients (self- and 1-token cross-attention)."""
-    def reference(q, k, v, keep):
-        logits = q @ jnp.swapaxes(k, -1, -2) / np.sqrt(q.shape[-1])
-        return (jax.nn.softmax(logits, axis=-1) * keep) @ v
-
-    keys = jax.random.split(jax.random.key(3), 5)
-    for sk in (7, 1):
-        q = jax.random.normal(keys[0], (3, 2, 7, 4))
-        k, v = (jax.random.normal(key, (3, 2, sk, 4)) for key in keys[1:3])
-        keep = (jax.random.bernoulli(keys[3], 0.8, (3, 2, 7, sk)) / 0.8) if with_dropout else jnp.ones(())
-        cot = jax.random.normal(keys[4], (3, 2, 7, 4))
-        loss = lambda f: lambda q, k, v: jnp.sum(f(q, k, v, keep) * cot)  # noqa: E731
-        np.testing.assert_allclose(attention(q, k, v, keep), reference(q, k, v, keep), rtol=1e-5, atol=1e-6)
-        got = jax.grad(loss(attention), argnums=(0, 1, 2))(q, k, v)
-        want = jax.grad(loss(reference), argnums=(0, 1, 2))(q, k, v)
-        for g, w in zip(got, want):
-            np.testing.assert_allclose(g, w, rtol=1e-4, atol=1e-5)
 
 
 # --------------------------------------------------------------------------- encoder

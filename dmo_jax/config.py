@@ -142,8 +142,9 @@ CPU = Preset(
     # dominates); 8 images x 16 candidates cut the head's gradient to 0.40 s. The held-out
     # misses of a first run (85 % top-1) were all other images' ground-truth motions lying
     # within ~1 px of the positive, so the 15 negatives lean to in-data ones (11 + 4 VAE).
-    # A shorter recipe tried (EBM 400 steps, rate x0.99 every 8 steps) ranked the held-out
-    # sets better (top-1 88 vs 85 %) but solved fewer pick_up_cup scenes; see BENCHMARKS.md.
+    # A shorter recipe tried (EBM 400 steps, rate x0.99 every 8 steps, together with a
+    # since-reverted attention gradient) ranked the held-out sets better (top-1 88 vs 85 %) but
+    # solved fewer pick_up_cup scenes; see BENCHMARKS.md.
     train=TrainConfig(
         vae_steps=600, vae_batch=16, ebm_steps=500, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
         dmo_steps=600, dmo_batch=12, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,

@@ -339,7 +339,7 @@ def fit(
             mngr.save(done, args=ocp.args.Composite(state=ocp.args.StandardSave(_host(state)),
                                                     meta=ocp.args.JsonSave(meta)))
     if pending is not None:
-        consecutive_skips = count_skips(pending, consecutive_skips)
+        count_skips(pending, consecutive_skips)
     mngr.wait_until_finished()
     if progress:
         progress.close()

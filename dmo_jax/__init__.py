@@ -14,6 +14,8 @@ flags that must precede it).
 
 _EXPORTS = {
     "predict": "inference",
+    "top_candidates": "inference",
+    "refine": "inference",
     "Models": "inference",
     "Prediction": "inference",
     "OptimizerSettings": "inference",

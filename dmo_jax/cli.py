@@ -107,8 +107,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         description="Predict from each test scene's first image, execute the ranked candidates (falling back "
         "to the next when one is abandoned) and report success in the paper's layout.")
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
-    parser.add_argument("--method", required=True, choices=WORLD_METHODS + METHODS,
-                        help="expert / blind need no model; the others use bin/train_all's networks")
+    parser.add_argument("--method", required=True,
+                        help=f"one of {', '.join(WORLD_METHODS + METHODS)}, or a comma-separated list (learned "
+                        "methods then share one scoring of the bank); expert / blind need no model, the others "
+                        "use bin/train_all's networks")
     parser.add_argument("--n", type=int, default=8, help="candidates kept from the bank (default 8)")
     parser.add_argument("--R", type=int, default=1, help="DMO refinements at prediction (default 1)")
     parser.add_argument("--episodes", type=int, default=100, help="test episodes per task (default 100)")
@@ -129,6 +131,12 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
     from envs.cli import check_output_file, check_writable_dir, default_data_dir, non_negative, positive, task_names
 
+    methods = [m.strip() for m in args.method.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in WORLD_METHODS + METHODS]
+    if not methods or unknown or len(set(methods)) != len(methods):
+        _fail(f"--method {args.method!r}: expected distinct names from {', '.join(WORLD_METHODS + METHODS)}"
+              + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
+    learned = [m for m in methods if m not in WORLD_METHODS]
     positive("--episodes", args.episodes)
     non_negative("--seed", args.seed)
     positive("--n", args.n)
@@ -140,8 +148,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         sweep = parse_sweep(args.sweep)
     except ValueError as err:
         _fail(str(err))
-    if sweep and args.method in WORLD_METHODS:
-        _fail(f"--sweep needs a learned method, not {args.method!r}")
+    if sweep and len(learned) < len(methods):
+        _fail(f"--sweep needs learned methods only, not {', '.join(m for m in methods if m not in learned)}")
     if sweep and (min(sweep[1]) < (1 if sweep[0] == "n" else 0)):
         _fail(f"--sweep {args.sweep}: values must be >= {1 if sweep[0] == 'n' else 0}")
     names = task_names(args.task)
@@ -156,7 +164,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
     from dmo_jax import training
     from dmo_jax.config import get_preset
-    from dmo_jax.evaluation import evaluate_method
+    from dmo_jax.evaluation import evaluate_methods
     from envs import evaluation
     from envs.dataset import DatasetError
     from envs.platform import enable_compilation_cache
@@ -169,33 +177,39 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         settings = [{"n": args.n, "R": args.R, sweep[0]: v} for v in sweep[1]]
     rows, results = [], []
     for setting in settings:
-        rates = {}
+        rates = {m: {} for m in methods}
         for name in names:
             try:
-                if args.method in WORLD_METHODS:
-                    result = evaluation.evaluate_world_method(name, args.method, args.episodes, data, args.backend)
-                else:
-                    result = evaluate_method(
-                        name, args.method, preset=preset, workdir=args.workdir, data_root=data,
+                by_method = {m: evaluation.evaluate_world_method(name, m, args.episodes, data, args.backend)
+                             for m in methods if m in WORLD_METHODS}
+                if learned:
+                    by_method.update((r["method"], r) for r in evaluate_methods(
+                        name, learned, preset=preset, workdir=args.workdir, data_root=data,
                         episodes=args.episodes, backend=args.backend, negatives=args.negatives,
-                        dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, **setting)
+                        dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, **setting))
             except (DatasetError, training.TrainingError, ValueError) as err:
                 _fail(str(err))
-            results.append(result)
-            rates[name] = result["success_rate"]
-            print(f"{name} {args.method} {_setting_label(args.method, setting)}: {result['successes']}/"
-                  f"{result['episodes']} = {rates[name]:.0%} (execution {result['seconds']:.1f} s"
-                  + (f", prediction {result['predict_seconds']:.1f} s)" if "predict_seconds" in result else ")"),
-                  file=sys.stderr)
-        rows.append((f"{args.method} {_setting_label(args.method, setting)}".strip(), rates))
+            for method in methods:
+                result = by_method[method]
+                results.append(result)
+                rates[method][name] = result["success_rate"]
+                print(f"{name} {method} {_setting_label(method, setting)}: {result['successes']}/"
+                      f"{result['episodes']} = {result['success_rate']:.0%} (execution {result['seconds']:.1f} s"
+                      + (f", prediction {result['predict_seconds']:.1f} s; first-ranked motion "
+                         f"{100 * result['first_error_m']:.1f} cm from the demonstration, EBM's top bank motion "
+                         f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
+                         f"{result['optimised_first']:.0%} of scenes)" if "predict_seconds" in result else ")"),
+                      file=sys.stderr)
+        rows.extend((f"{m} {_setting_label(m, setting)}".strip(), rates[m]) for m in methods)
     print(evaluation.success_table(rows))
     if args.json:
         episodes, successes = sum(r["episodes"] for r in results), sum(r["successes"] for r in results)
+        method = methods[0] if len(methods) == 1 else methods
         _write_json(args.json, {
-            # totals over every row (one task and setting: that row's numbers)
-            "task": names[0] if len(names) == 1 else names, "method": args.method, "episodes": episodes,
+            # totals over every row (one task, method and setting: that row's numbers)
+            "task": names[0] if len(names) == 1 else names, "method": method, "episodes": episodes,
             "successes": successes, "success_rate": successes / episodes,
-            "settings": {"method": args.method, "preset": preset.name, "variant": preset.variant,
+            "settings": {"method": method, "preset": preset.name, "variant": preset.variant,
                          "negatives": args.negatives, "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
                          "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep},

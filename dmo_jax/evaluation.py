@@ -1,47 +1,90 @@
 """Success of the learned methods in simulation (``bin/evaluate``).
 
-For each test episode: rebuild the scene from its seed, :func:`~dmo_jax.inference.predict`
-from the stored first image with the task's training motions as the bank, and execute the
-ranked candidates through ``envs.evaluation.run_episodes`` — the next-lowest-energy
-candidate is tried when one is abandoned, at most n.
+For each test episode: rebuild the scene from its seed, predict from the stored first image
+with the task's training motions as the bank (scored once; each method refines the same top
+n), and execute the ranked candidates through ``envs.evaluation.run_episodes`` — the
+next-lowest-energy candidate is tried when one is abandoned, at most n.
 """
 from __future__ import annotations
 
 import time
+from typing import Sequence
 
 import jax
 import numpy as np
 
 from .config import Preset
 from .data import network_image
-from .inference import OptimizerSettings, predict
+from .inference import OptimizerSettings, refine, top_candidates
 
 
-def predict_episodes(models, preset: Preset, method: str, images: np.ndarray, bank: np.ndarray, n: int, R: int,
-                     seed: int = 0, batch: int = 10, settings: OptimizerSettings = OptimizerSettings()):
-    """Ranked candidates ``[E, K, 101, 11]`` and energies ``[E, K]`` for network ``images [E, S, S, 4]``,
-    ``batch`` images per :func:`predict` call (the last batch is padded, so one compilation)."""
-    e = len(images)
-    batch = min(batch, e)
-    pad = (-e) % batch
+def _padded_batches(images: np.ndarray, batch: int):
+    """``(i, images[i:i + batch])`` with the last batch padded by repeating the last image, so
+    every call has one shape (one compilation)."""
+    pad = (-len(images)) % batch
     images = np.concatenate([images, np.repeat(images[-1:], pad, axis=0)]) if pad else images
-    bank = jax.numpy.asarray(bank)
-    cands, energies = [], []
     for i in range(0, len(images), batch):
-        key = jax.random.fold_in(jax.random.key(seed), i)
-        out = predict(models, images[i:i + batch], bank, key, preset=preset, method=method, n=n, R=R,
-                      settings=settings)
-        cands.append(np.asarray(out.candidates))
-        energies.append(np.asarray(out.energies))
-    return np.concatenate(cands)[:e], np.concatenate(energies)[:e]
+        yield i, images[i:i + batch]
 
 
-def evaluate_method(task_name: str, method: str, *, preset: Preset, workdir, data_root, n: int = 8, R: int = 1,
-                    episodes: int = 100, backend: str = "auto", negatives: str = "in-data+vae",
-                    dmo_train_iters: int | None = None, seed: int = 0, viz_dir=None) -> dict:
-    """Predict with ``method`` on the first ``episodes`` test images of a task and execute.
+def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.ndarray, bank: np.ndarray, n: int,
+                     R: int, seed: int = 0, batch: int = 10, settings: OptimizerSettings = OptimizerSettings()):
+    """Predict with each of ``methods`` for network ``images [E, S, S, 4]``, scoring the bank once.
 
-    Returns the ``run_episodes`` result plus ``method``, ``n``, ``R``, ``predict_seconds``.
+    Returns ``(starts, predictions, seconds)``: the EBM's top ``n`` bank motions per image
+    ``[E, n, 101, 11]``; per method ``(candidates [E, K, 101, 11], energies [E, K])`` ranked as
+    :func:`~dmo_jax.inference.predict` ranks them (same keys, same result); and the wall time
+    of the bank scoring and of each method (``seconds["bank"]``, ``seconds[method]``).
+    """
+    e, batch = len(images), min(batch, len(images))
+    bank = jax.numpy.asarray(bank)
+    t0 = time.perf_counter()
+    starts = [np.asarray(top_candidates(models, x, bank, preset=preset, n=n)) for _, x in _padded_batches(images, batch)]
+    seconds = {"bank": time.perf_counter() - t0}
+    predictions = {}
+    for method in methods:
+        t0 = time.perf_counter()
+        cands, energies = [], []
+        for (i, x), start in zip(_padded_batches(images, batch), starts):
+            key = jax.random.fold_in(jax.random.key(seed), i)
+            out = refine(models, x, start, key, preset=preset, method=method, R=R, settings=settings)
+            cands.append(np.asarray(out.candidates))
+            energies.append(np.asarray(out.energies))
+        predictions[method] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
+        seconds[method] = time.perf_counter() - t0
+    return np.concatenate(starts)[:e], predictions, seconds
+
+
+def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstrations: np.ndarray, intrinsics,
+                       image_size: int) -> dict:
+    """Where the ranked ``candidates [E, K, 101, 11]`` lie against the scenes' demonstrations,
+    as mean 3-D position errors in metres (``losses.position_error``) averaged over episodes:
+    ``first_error_m`` of the first-ranked candidate, ``start_error_m`` of the EBM's top bank
+    motion, ``best_start_error_m`` of the closest of the ``n`` starts; and ``optimised_first``,
+    the fraction of episodes whose first-ranked candidate is an optimised motion, not a start."""
+    import jax.numpy as jnp
+
+    from .losses import position_error
+
+    error = jax.jit(jax.vmap(jax.vmap(lambda m, d: position_error(m, d, intrinsics, image_size), (0, None))))
+    demos = jnp.asarray(demonstrations, jnp.float32)
+    start_errors = np.asarray(error(jnp.asarray(starts), demos))
+    first = candidates[:, :1]
+    is_start = np.any(np.all(first == starts, axis=(2, 3)), axis=1)
+    return {"first_error_m": round(float(np.mean(error(jnp.asarray(first), demos))), 4),
+            "start_error_m": round(float(np.mean(start_errors[:, 0])), 4),
+            "best_start_error_m": round(float(np.mean(start_errors.min(axis=1))), 4),
+            "optimised_first": round(float(np.mean(~is_start)), 3)}
+
+
+def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root, n: int = 8,
+                     R: int = 1, episodes: int = 100, backend: str = "auto", negatives: str = "in-data+vae",
+                     dmo_train_iters: int | None = None, seed: int = 0, viz_dir=None, log=None) -> list[dict]:
+    """Predict with each of ``methods`` on the first ``episodes`` test images of a task (the
+    bank scored once for all) and execute.
+
+    Returns, per method, the ``run_episodes`` result plus ``method``, ``n``, ``R``,
+    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split
@@ -52,19 +95,33 @@ def evaluate_method(task_name: str, method: str, *, preset: Preset, workdir, dat
     if test.meta["image_size"] != preset.image_size:
         raise DatasetError(f"{data_root}/{task_name} has {test.meta['image_size']}px images but preset "
                            f"{preset.name!r} needs {preset.image_size}px; use another --data directory")
-    bank = np.asarray(load_split(data_root, task_name, "train").motions, np.float32)
-    models = load_models(workdir, task_name, preset, method, negatives, dmo_train_iters)
+    train = load_split(data_root, task_name, "train")
+    bank = np.asarray(train.motions, np.float32)
+    models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters)
     episodes = min(episodes, len(test))
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
-    t0 = time.perf_counter()
-    cands, energies = predict_episodes(models, preset, method, images, bank, n, R, seed)
-    predict_seconds = time.perf_counter() - t0
-    result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
-    if viz_dir is not None:
-        from .visualize import save_episode_visuals
+    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, n, R, seed)
+    intrinsics = np.asarray(test.meta["intrinsics"], np.float32)
+    results = []
+    for method in methods:
+        cands, energies = predictions[method]
+        result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
+        if viz_dir is not None:
+            from .visualize import save_episode_visuals
 
-        save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset)
-    return {"method": method, "n": n, "R": R, **result, "predict_seconds": round(predict_seconds, 2)}
+            save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset,
+                                 label=method if len(methods) > 1 else "")
+        diagnostics = motion_diagnostics(starts, cands, test.motions[:episodes], intrinsics, preset.image_size)
+        results.append({"method": method, "n": n, "R": R, **result,
+                        "predict_seconds": round(seconds["bank"] + seconds[method], 2), **diagnostics})
+        if log is not None:
+            log(results[-1])
+    return results
+
+
+def evaluate_method(task_name: str, method: str, **kwargs) -> dict:
+    """:func:`evaluate_methods` for one method."""
+    return evaluate_methods(task_name, [method], **kwargs)[0]
 
 
 def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,

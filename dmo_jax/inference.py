@@ -10,6 +10,9 @@ batch shape). For every method it
 4. re-scores the originals and every optimised candidate with the EBM and returns them
    ranked (lowest energy first), so execution can fall back to the next candidate.
 
+:func:`top_candidates` (step 2) and :func:`refine` (steps 3-4) are the two halves, for
+comparing several methods from one scoring of the bank.
+
 Methods (all start from the same top-n; settings of method.md):
 
 * ``sort``      EBM ranking only, no optimisation;
@@ -118,15 +121,17 @@ def _is_integer(value) -> bool:
 
 def check_arrays(image, bank, key) -> None:
     """dtype checks (always) and value checks (concrete arrays only) of :func:`predict`'s
-    arrays; raises ``ValueError`` naming what is wrong and what was expected."""
+    arrays (``key`` None: not checked); raises ``ValueError`` naming what is wrong and what was
+    expected."""
     if not jnp.issubdtype(image.dtype, jnp.floating):
         raise ValueError(f"image must be floating-point (RGB in [0, 1] + depth mapped to [0, 1], see "
                          f"dmo_jax.data.network_image), got {describe_array(image)}")
     if not jnp.issubdtype(bank.dtype, jnp.floating):
         raise ValueError(f"bank must be floating-point [N, {NUM_STEPS}, {POSE_DIM}] motions, got {describe_array(bank)}")
-    typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-    if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
-        raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
+    if key is not None:
+        typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
+            raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
     if _is_concrete(image):
         bad = count_non_finite(image)
         if bad:
@@ -217,14 +222,22 @@ def _masked(delta):
 
 
 # --------------------------------------------------------------------------- one image
-def _predict_one(preset: Preset, method: str, n: int, R: int, chunk: int, settings: OptimizerSettings,
-                 models: Models, image, bank, key) -> Prediction:
+def _top_n(preset: Preset, n: int, chunk: int, models: Models, image, bank):
+    """The ``n`` lowest-energy motions of ``bank`` for one image, ``[n, 101, 11]`` (best first)."""
+    ebm = EBMNet(preset)
+    bank_energy = chunked_energy(ebm, models.ebm, ebm.encode(models.ebm, image), bank, chunk)
+    _, top = jax.lax.top_k(-bank_energy, n)
+    return bank[top]
+
+
+def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: OptimizerSettings, models: Models,
+                image, start, key) -> Prediction:
+    """Optimise one image's starting motions ``start [n, 101, 11]`` with ``method`` and rank the
+    starts and the results by energy."""
     ebm = EBMNet(preset)
     f_ebm = ebm.encode(models.ebm, image)
     energy = lambda m: ebm.energy(models.ebm, f_ebm, m)
-    bank_energy = chunked_energy(ebm, models.ebm, f_ebm, bank, chunk)
-    _, top = jax.lax.top_k(-bank_energy, n)
-    start = bank[top]
+    n = start.shape[0]
 
     if method == "sort":
         cands = start
@@ -264,12 +277,29 @@ def _predict_one(preset: Preset, method: str, n: int, R: int, chunk: int, settin
     return Prediction(cands[0], cands, energies)
 
 
+@functools.partial(jax.jit, static_argnames=("preset", "n", "chunk"))
+def _top_candidates_jit(models, image, bank, *, preset, n, chunk):
+    one = functools.partial(_top_n, preset, n, chunk, models)
+    return one(image, bank) if image.ndim == 3 else jax.vmap(one, in_axes=(0, None))(image, bank)
+
+
+@functools.partial(jax.jit, static_argnames=("preset", "method", "R", "chunk", "settings"))
+def _refine_jit(models, image, start, key, *, preset, method, R, chunk, settings):
+    one = functools.partial(_refine_one, preset, method, R, chunk, settings, models)
+    if image.ndim == 3:
+        return one(image, start, key)
+    return jax.vmap(one)(image, start, jax.random.split(key, image.shape[0]))
+
+
 @functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings"))
 def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings):
-    one = functools.partial(_predict_one, preset, method, n, R, chunk, settings, models)
+    def one(image, key):
+        start = _top_n(preset, n, chunk, models, image, bank)
+        return _refine_one(preset, method, R, chunk, settings, models, image, start, key)
+
     if image.ndim == 3:
-        return one(image, bank, key)
-    return jax.vmap(one, in_axes=(0, None, 0))(image, bank, jax.random.split(key, image.shape[0]))
+        return one(image, key)
+    return jax.vmap(one)(image, jax.random.split(key, image.shape[0]))
 
 
 def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
@@ -302,6 +332,51 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         variant. Inside the caller's ``jax.jit`` the arrays are tracers: shapes and dtypes
         are still checked, values (NaN, range) are not.
     """
+    preset, image, bank, key = _checked_call(models, preset, method, image, bank, key, n, R, chunk)
+    return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
+                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
+
+
+def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
+                   chunk: int = 256) -> jax.Array:
+    """Step 2 of :func:`predict` alone: the ``n`` lowest-energy bank motions per image,
+    ``[n, 101, 11]`` (or ``[B, n, 101, 11]`` for a batch of images), best first.
+
+    With :func:`refine` it splits :func:`predict` in two, so that several methods can start
+    from one scoring of the bank (the costly part: N EBM evaluations per image).
+    ``refine(models, image, top_candidates(models, image, bank, ...), key, ...)`` equals
+    ``predict(models, image, bank, key, ...)``. Raises ``ValueError`` as :func:`predict` does.
+    """
+    preset, image, bank, _ = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk)
+    return _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
+
+
+def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *, preset: Preset,
+           method: str = "dmo", R: int = 1, chunk: int = 256,
+           settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
+    """Steps 3-4 of :func:`predict`: optimise the starting motions ``start`` (``[n, 101, 11]`` for
+    an image ``[S, S, 4]``, ``[B, n, 101, 11]`` for images ``[B, S, S, 4]``; usually
+    :func:`top_candidates`' output) with ``method`` and rank them with the results by energy.
+    Arguments, result and errors as :func:`predict`."""
+    start, image = (x if hasattr(x, "dtype") else np.asarray(x) for x in (start, image))
+    shape, image_shape = tuple(jnp.shape(start)), tuple(jnp.shape(image))
+    if (len(shape) != len(image_shape) or shape[-2:] != (NUM_STEPS, POSE_DIM) or shape[-3] < 1
+            or (len(shape) == 4 and shape[0] != image_shape[0])):
+        raise ValueError(f"start must be [n, {NUM_STEPS}, {POSE_DIM}] for one image or [B, n, {NUM_STEPS}, "
+                         f"{POSE_DIM}] for images [B, S, S, 4], got start {shape} for image {image_shape}")
+    if not jnp.issubdtype(start.dtype, jnp.floating):
+        raise ValueError(f"start must be floating-point motions, got {describe_array(start)}")
+    if _is_concrete(start) and count_non_finite(start):
+        raise ValueError(f"start contains {count_non_finite(start)} NaN or inf value(s); expected finite motions")
+    flat = start.reshape((-1,) + shape[-2:])
+    preset, image, _, key = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk)
+    return _refine_jit(models, image, start, key, preset=preset, method=method,
+                       R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
+
+
+def _checked_call(models, preset, method, image, bank, key, n, R, chunk):
+    """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
+    (``key`` None: not used); returns ``(preset, image, bank, key)`` as arrays and a Preset."""
     if isinstance(preset, str):
         preset = get_preset(preset)
     if not isinstance(preset, Preset):
@@ -309,7 +384,7 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
     for name, value in (("n", n), ("R", R), ("chunk", chunk)):
         if not _is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
-    image, bank, key = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank, key))
+    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
     check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R)
     if not isinstance(models, Models):
         raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
@@ -321,11 +396,12 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         raise ValueError(f"method {method!r} needs the motion VAE parameters (Models.vae)")
     if chunk < 1:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
+    if key is not None:
+        key = key if hasattr(key, "dtype") else np.asarray(key)
     check_arrays(image, bank, key)
     check_params(models.ebm, preset, "ebm")
     if method == "dmo":
         check_params(models.dmo, preset, "dmo")
     if method in ("vaebm-l", "vaebm-s"):
         check_params(models.vae, preset, "vae")
-    return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
-                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
+    return preset, image, bank, key

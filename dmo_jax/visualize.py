@@ -47,8 +47,8 @@ def trajectory_overlay(rgb: np.ndarray, candidates: np.ndarray, chosen: int = 0,
 
 
 def save_episode_visuals(viz_dir, task_name: str, test, candidates: np.ndarray, energies: np.ndarray,
-                         result: dict, preset, max_episodes: int = 10) -> None:
-    """For the first ``max_episodes`` episodes write ``<task>_<i>_{ok,fail}.png`` (trajectories)
+                         result: dict, preset, max_episodes: int = 10, label: str = "") -> None:
+    """For the first ``max_episodes`` episodes write ``<task>[_<label>]_<i>_{ok,fail}.png`` (trajectories)
     and ``.gif`` (the executed candidate's rollout, native MuJoCo)."""
     from envs import execution
     from envs.camera import write_png
@@ -60,7 +60,7 @@ def save_episode_visuals(viz_dir, task_name: str, test, candidates: np.ndarray, 
     task = get_task(task_name, test.meta["image_size"])
     for i in range(min(max_episodes, len(result["episode_success"]))):
         chosen = int(result["candidate_used"][i])
-        stem = out / f"{task_name}_{i:03d}_{'ok' if result['episode_success'][i] else 'fail'}"
+        stem = out / f"{task_name}{'_' + label if label else ''}_{i:03d}_{'ok' if result['episode_success'][i] else 'fail'}"
         write_png(stem.with_suffix(".png"), trajectory_overlay(np.asarray(test.rgb[i]), candidates[i], chosen))
         scenes = task.batch([task.reset(int(test.seeds[i]))])
         run = execution.execute(task.world, candidates[i, chosen][None], scenes, task.success, "mujoco")

@@ -87,18 +87,20 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     return summary
 
 
-def load_models(workdir, task_name: str, preset: Preset, method: str, negatives: str = "in-data+vae",
+def load_models(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
                 dmo_train_iters: int | None = None):
-    """The trained networks ``method`` needs (``dmo_jax.inference.Models``), from ``bin/train_all``'s
-    work directory; raises ``training.TrainingError`` naming what is missing or mismatched."""
+    """The trained networks ``method`` (a method name or a list of them) needs
+    (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
+    ``training.TrainingError`` naming what is missing or mismatched."""
     from .inference import Models
 
+    methods = (method,) if isinstance(method, str) else tuple(method)
     paths = RunPaths.of(workdir, task_name, preset)
     ebm, _ = training.load_params(paths.ebm(preset.variant, negatives), training.ebm_spec(preset, negatives))
     dmo = vae = None
-    if method == "dmo":
+    if "dmo" in methods:
         r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
         dmo, _ = training.load_params(paths.dmo(preset.variant, r), training.dmo_spec(preset, r))
-    if method in ("vaebm-l", "vaebm-s"):
+    if {"vaebm-l", "vaebm-s"} & set(methods):
         vae, _ = training.load_params(paths.vae(), training.vae_spec(preset))
     return Models(ebm, dmo, vae)

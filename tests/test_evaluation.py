@@ -58,14 +58,28 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     assert gifs[0].read_bytes()[:6] == b"GIF89a"
 
 
-@pytest.mark.parametrize("method", ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"])
-def test_every_baseline_evaluates(trained, method):
+def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path):
     from dmo_jax.evaluation import evaluate_method
 
     data, work = trained
-    result = evaluate_method(TASK, method, preset=TINY, workdir=work, data_root=data, n=2, episodes=2,
-                             backend="mujoco")
-    assert result["method"] == method and result["episodes"] == 2 and 0 <= result["success_rate"] <= 1
+    methods = ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"]
+    out = tmp_path / "all.json"
+    proc = _run("bin/evaluate", "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data",
+                str(data), "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco",
+                "--json", str(out))
+    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [f"{m} n=2" for m in methods]
+    payload = json.loads(out.read_text())
+    assert payload["method"] == methods and [r["method"] for r in payload["results"]] == methods
+    for r in payload["results"]:
+        assert r["episodes"] == 2 and 0 <= r["success_rate"] <= 1
+        assert 0 <= r["best_start_error_m"] <= r["start_error_m"] and 0 <= r["optimised_first"] <= 1
+    sort = payload["results"][0]
+    assert sort["optimised_first"] == 0 and sort["first_error_m"] == sort["start_error_m"]
+    # a method evaluated alone gets what it gets beside the others
+    gd = evaluate_method(TASK, "gd", preset=TINY, workdir=work, data_root=data, n=2, episodes=2, backend="mujoco")
+    together = payload["results"][methods.index("gd")]
+    for key in ("episode_success", "candidate_used", "first_error_m", "optimised_first"):
+        assert gd[key] == together[key], key
 
 
 def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):

@@ -46,6 +46,30 @@ def test_predict_is_jittable_and_vmaps_over_images(models, bank):
     assert wrapped(images[0]).shape == (101, 11)
 
 
+@pytest.mark.parametrize("method, R", [("dmo", 2), ("langevin", 0), ("vaebm-s", 0)])
+def test_top_candidates_then_refine_equals_predict(models, bank, method, R):
+    images, key = _images(2), jax.random.key(5)
+    whole = predict(models, images, bank, key, preset=TINY, method=method, n=3, R=R)
+    start = inference.top_candidates(models, images, bank, preset=TINY, n=3)
+    assert start.shape == (2, 3, 101, 11)
+    sort = predict(models, images, bank, key, preset=TINY, method="sort", n=3)
+    np.testing.assert_array_equal(start, sort.candidates)  # the bank's top 3, best first
+    split = inference.refine(models, images, start, key, preset=TINY, method=method, R=R)
+    np.testing.assert_allclose(split.candidates, whole.candidates, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(split.energies, whole.energies, rtol=1e-5, atol=1e-5)
+
+
+def test_refine_rejects_starts_that_do_not_fit_the_images(models, bank):
+    images = _images(2)
+    start = inference.top_candidates(models, images, bank, preset=TINY, n=3)
+    with pytest.raises(ValueError, match=r"start must be \[n, 101, 11\] for one image or \[B, n, 101, 11\]"):
+        inference.refine(models, images, start[0], jax.random.key(0), preset=TINY)
+    with pytest.raises(ValueError, match=r"got start \(1, 3, 101, 11\) for image \(2, 32, 32, 4\)"):
+        inference.refine(models, images, start[:1], jax.random.key(0), preset=TINY)
+    with pytest.raises(ValueError, match="start contains 1 NaN"):
+        inference.refine(models, images, start.at[0, 0, 0, 0].set(jnp.nan), jax.random.key(0), preset=TINY)
+
+
 def test_full_bank_without_refinement_returns_the_minimum_energy_motion(models, bank):
     image = _images(1)[0]
     ebm = EBMNet(TINY)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -240,42 +241,103 @@ def cost_main(argv: list[str] | None = None) -> None:
     print(json.dumps(table) if args.json else format_table(args.preset, table))
 
 
+BENCHMARK_SECTIONS = ("encoder", "train-step", "execution", "predict", "data")
+
+
 def benchmark_main(argv: list[str] | None = None) -> None:
     """``bin/benchmark``: the speed measurements of BENCHMARKS.md."""
     from dmo_jax.config import PRESETS
-    from envs.cli import positive
+    from envs.cli import check_output_file, positive
 
     parser = argparse.ArgumentParser(description="Benchmarks of dmo-jax (see BENCHMARKS.md).")
-    parser.add_argument("--only", choices=["encoder", "train-step", "execution", "predict"], required=True,
-                        help="encoder: one image's encoder forward; train-step: VAE/EBM/DMO optimiser steps; "
-                        "execution: physics back-ends (native MuJoCo, MJX) on the scripted pick-up; "
-                        "predict: predict() latency per n and per method, with and without F reuse")
-    parser.add_argument("--episodes", type=int, default=64, help="episodes per batch (execution)")
-    parser.add_argument("--preset", choices=list(PRESETS), help="default: paper for encoder, cpu for train-step and predict")
+    parser.add_argument("--only", choices=BENCHMARK_SECTIONS,
+                        help="one section (default: every section, each in its own process so that its peak "
+                        "memory is its own). encoder: one image's encoder forward; train-step: VAE/EBM/DMO "
+                        "optimiser steps; execution: physics back-ends (native MuJoCo, MJX) on the scripted "
+                        "pick-up; predict: predict() latency per n and per method, with and without F reuse; "
+                        "data: demonstration generation (expert, physics, rendering)")
+    parser.add_argument("--episodes", type=int, default=64, help="episodes per batch (execution, data)")
+    parser.add_argument("--preset", choices=list(PRESETS),
+                        help="default: paper for encoder, cpu for train-step and predict")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--torch-reference", action="store_true", help="also time a same-sized PyTorch U-Net")
-    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    parser.add_argument("--out", help="also write the JSON to this file")
     args = parser.parse_args(argv)
     positive("--repeats", args.repeats)
     positive("--episodes", args.episodes)
+    if args.out:
+        check_output_file(args.out, "--out")
+
+    if args.only is None:
+        result = {section: _benchmark_section_in_subprocess(section, args) for section in BENCHMARK_SECTIONS}
+        text = lambda r: "\n\n".join(_format_benchmark(s, r[s]) for s in BENCHMARK_SECTIONS)  # noqa: E731
+    else:
+        result = _benchmark_section(args.only, args)
+        text = functools.partial(_format_benchmark, args.only)
+    print(json.dumps(result, indent=1) if args.json else text(result))
+    if args.out:
+        _write_json(args.out, result)
+
+
+def _benchmark_section(section: str, args) -> dict:
+    """One section's measurements, plus this process's peak resident memory (``peak_rss_mb``)."""
+    import resource
 
     from dmo_jax import benchmark
 
-    if args.only == "encoder":
+    if section == "encoder":
         result = benchmark.encoder_benchmark(args.preset or "paper", args.repeats, with_torch=args.torch_reference)
-        text = benchmark.format_encoder_benchmark
-    elif args.only == "train-step":
+    elif section == "train-step":
         result = benchmark.training_step_benchmark(args.preset or "cpu", args.repeats)
-        text = benchmark.format_training_step_benchmark
-    elif args.only == "predict":
+    elif section == "predict":
         result = benchmark.predict_benchmark(args.preset or "cpu", repeats=args.repeats)
-        text = benchmark.format_predict_benchmark
-    else:
+    elif section == "execution":
         from envs.benchmark import benchmark_execution
 
-        result = benchmark_execution(args.episodes, min(args.repeats, 3))
-        text = lambda rows: "\n".join(json.dumps(r) for r in rows)  # noqa: E731
-    print(json.dumps(result, indent=1) if args.json else text(result))
+        result = {"rows": benchmark_execution(args.episodes, min(args.repeats, 3))}
+    else:
+        from envs.benchmark import benchmark_data_generation
+
+        result = benchmark_data_generation(episodes=args.episodes)
+    # ru_maxrss is in KiB on Linux
+    return {**result, "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}
+
+
+def _benchmark_section_in_subprocess(section: str, args) -> dict:
+    import os
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    argv = ["--only", section, "--json", "--repeats", str(args.repeats), "--episodes", str(args.episodes)]
+    argv += (["--preset", args.preset] if args.preset else []) + (["--torch-reference"] if args.torch_reference else [])
+    print(f"[benchmark] {section} ...", file=sys.stderr)
+    t0 = time.perf_counter()
+    code = "import envs; from dmo_jax.cli import benchmark_main; benchmark_main()"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
+    proc = subprocess.run([sys.executable, "-c", code, *argv], cwd=root, env=env, stdout=subprocess.PIPE, text=True)
+    if proc.returncode != 0:
+        _fail(f"benchmark section {section!r} failed (exit status {proc.returncode}); rerun it alone with "
+              f"bin/benchmark --only {section}")
+    print(f"[benchmark] {section} done in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return json.loads(proc.stdout)
+
+
+def _format_benchmark(section: str, result: dict) -> str:
+    from dmo_jax import benchmark
+
+    if section == "encoder":
+        text = benchmark.format_encoder_benchmark(result)
+    elif section == "train-step":
+        text = benchmark.format_training_step_benchmark(result)
+    elif section == "predict":
+        text = benchmark.format_predict_benchmark(result)
+    elif section == "execution":
+        text = "execution\n" + "\n".join(json.dumps(r) for r in result["rows"])
+    else:
+        text = (f"data generation: {result['episodes']} episodes of {result['task']} at {result['image_size']}px in "
+                f"{result['seconds']:.1f} s = {result['episodes_per_s']:.2f} episodes/s")
+    return f"{text}\npeak resident memory of the process: {result['peak_rss_mb']:.0f} MB"
 
 
 def ebm_misses_main(argv: list[str] | None = None) -> None:

@@ -36,3 +36,21 @@ def benchmark_execution(episodes: int = 64, repeats: int = 3, backends=("mujoco"
             "success_rate": float(result.success.mean()),
         })
     return rows
+
+
+def benchmark_data_generation(task_name: str = "pick_up_cup", episodes: int = 64, image_size: int = 64) -> dict:
+    """Generate ``episodes`` demonstrations of a task (scripted expert, native MuJoCo,
+    rendering) into a temporary directory, as ``bin/generate_data`` does; returns the wall
+    time and episodes per second (kept episodes: the expert's failures are retried)."""
+    import tempfile
+
+    from envs import dataset
+    from envs.tasks import get_task
+
+    task = get_task(task_name, image_size)
+    with tempfile.TemporaryDirectory() as root:
+        t0 = time.perf_counter()
+        dataset.generate_split(task, "train", episodes, root, batch=min(64, episodes), verbose=False)
+        wall = time.perf_counter() - t0
+    return {"task": task_name, "image_size": image_size, "episodes": episodes, "seconds": round(wall, 2),
+            "episodes_per_s": round(episodes / wall, 2)}

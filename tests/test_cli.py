@@ -44,3 +44,13 @@ def test_execute_rejects_a_malformed_motion(tmp_path):
     np.save(bad, np.zeros((101, 7), np.float32))
     proc = _run("bin/execute", "--motion", str(bad), check=False)
     assert proc.returncode != 0 and "[E, T, 11]" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_benchmark_data_section_reports_rate_and_memory(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = _run("bin/benchmark", "--only", "data", "--episodes", "3", "--out", str(out))
+    result = json.loads(out.read_text())
+    assert result["episodes"] == 3 and result["seconds"] > 0
+    assert abs(result["episodes_per_s"] - 3 / result["seconds"]) < 0.01
+    assert result["peak_rss_mb"] > 50  # the process holds at least MuJoCo and numpy
+    assert "episodes/s" in proc.stdout and "peak resident memory" in proc.stdout

@@ -275,6 +275,7 @@ COMMAND_CASES = [
     # bin/cost, bin/benchmark
     _case("cost", ["--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
     _case("benchmark", ["--only", "everything"], "argument --only: invalid choice: 'everything'"),
+    _case("benchmark", ["--only", "data", "--out", "{missing}/b.json"], "does not exist"),
     _case("benchmark", ["--only", "encoder", "--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
     _case("benchmark", ["--only", "encoder", "--repeats", "0"], "--repeats must be a positive integer, got 0"),
     _case("benchmark", ["--only", "execution", "--episodes", "0"], "--episodes must be a positive integer, got 0"),

@@ -96,6 +96,7 @@ class TrainConfig:
     dmo_infer_iters: int = 1  # R at prediction
     dmo_input_sigma: float = 1.0  # DMO input z = mu + 1 sigma eps
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
+    dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1
     num_candidates: int = 8  # n kept by the EBM at inference
 
 

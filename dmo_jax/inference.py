@@ -360,8 +360,8 @@ def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *
     Arguments, result and errors as :func:`predict`."""
     start, image = (x if hasattr(x, "dtype") else np.asarray(x) for x in (start, image))
     shape, image_shape = tuple(jnp.shape(start)), tuple(jnp.shape(image))
-    if (len(shape) != len(image_shape) or shape[-2:] != (NUM_STEPS, POSE_DIM) or shape[-3] < 1
-            or (len(shape) == 4 and shape[0] != image_shape[0])):
+    if (len(shape) not in (3, 4) or len(shape) != len(image_shape) or shape[-2:] != (NUM_STEPS, POSE_DIM)
+            or shape[-3] < 1 or (len(shape) == 4 and shape[0] != image_shape[0])):
         raise ValueError(f"start must be [n, {NUM_STEPS}, {POSE_DIM}] for one image or [B, n, {NUM_STEPS}, "
                          f"{POSE_DIM}] for images [B, S, S, 4], got start {shape} for image {image_shape}")
     if not jnp.issubdtype(start.dtype, jnp.floating):

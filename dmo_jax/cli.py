@@ -173,35 +173,33 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     enable_compilation_cache()
     preset = get_preset(args.preset, args.variant)
     data = args.data or default_data_dir(preset.image_size)
-    settings = [dict(n=args.n, R=args.R)]
+    settings = [(args.n, args.R)]
     if sweep:
-        settings = [{"n": args.n, "R": args.R, sweep[0]: v} for v in sweep[1]]
-    rows, results = [], []
-    for setting in settings:
-        rates = {m: {} for m in methods}
-        for name in names:
-            try:
-                by_method = {m: evaluation.evaluate_world_method(name, m, args.episodes, data, args.backend)
-                             for m in methods if m in WORLD_METHODS}
-                if learned:
-                    by_method.update((r["method"], r) for r in evaluate_methods(
-                        name, learned, preset=preset, workdir=args.workdir, data_root=data,
-                        episodes=args.episodes, backend=args.backend, negatives=args.negatives,
-                        dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, **setting))
-            except (DatasetError, training.TrainingError, ValueError) as err:
-                _fail(str(err))
-            for method in methods:
-                result = by_method[method]
-                results.append(result)
-                rates[method][name] = result["success_rate"]
-                print(f"{name} {method} {_setting_label(method, setting)}: {result['successes']}/"
-                      f"{result['episodes']} = {result['success_rate']:.0%} (execution {result['seconds']:.1f} s"
-                      + (f", prediction {result['predict_seconds']:.1f} s; first-ranked motion "
-                         f"{100 * result['first_error_m']:.1f} cm from the demonstration, EBM's top bank motion "
-                         f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
-                         f"{result['optimised_first']:.0%} of scenes)" if "predict_seconds" in result else ")"),
-                      file=sys.stderr)
-        rows.extend((f"{m} {_setting_label(m, setting)}".strip(), rates[m]) for m in methods)
+        settings = [(v, args.R) if sweep[0] == "n" else (args.n, v) for v in sweep[1]]
+    by_row = {}  # row label ("dmo n=8 R=1") -> {task: result}, rows in the order they appear
+    for name in names:
+        try:
+            found = [evaluation.evaluate_world_method(name, m, args.episodes, data, args.backend)
+                     for m in methods if m in WORLD_METHODS]
+            if learned:
+                found += evaluate_methods(
+                    name, learned, preset=preset, workdir=args.workdir, data_root=data, settings=settings,
+                    episodes=args.episodes, backend=args.backend, negatives=args.negatives,
+                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz)
+        except (DatasetError, training.TrainingError, ValueError) as err:
+            _fail(str(err))
+        for result in found:
+            label = _setting_label(result)
+            by_row.setdefault(label, {})[name] = result
+            print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
+                  f"(execution {result['seconds']:.1f} s"
+                  + (f", prediction {result['predict_seconds']:.1f} s; first-ranked motion "
+                     f"{100 * result['first_error_m']:.1f} cm from the demonstration, EBM's top bank motion "
+                     f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
+                     f"{result['optimised_first']:.0%} of scenes)" if "predict_seconds" in result else ")"),
+                  file=sys.stderr)
+    rows = [(label, {t: r["success_rate"] for t, r in per_task.items()}) for label, per_task in by_row.items()]
+    results = [r for per_task in by_row.values() for r in per_task.values()]
     print(evaluation.success_table(rows))
     if args.json:
         episodes, successes = sum(r["episodes"] for r in results), sum(r["successes"] for r in results)
@@ -217,12 +215,15 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             "results": results})
 
 
-def _setting_label(method: str, setting: dict) -> str:
+def _setting_label(result: dict) -> str:
+    """``dmo n=8 R=1``, ``sort n=8``, ``expert``: a result's row in the success table."""
+    from dmo_jax.inference import METHODS_USING_R
     from envs.evaluation import WORLD_METHODS
 
+    method = result["method"]
     if method in WORLD_METHODS:
-        return ""
-    return f"n={setting['n']}" + (f" R={setting['R']}" if method == "dmo" else "")
+        return method
+    return f"{method} n={result['n']}" + (f" R={result['R']}" if method in METHODS_USING_R else "")
 
 
 def cost_main(argv: list[str] | None = None) -> None:

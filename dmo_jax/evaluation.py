@@ -15,7 +15,7 @@ import numpy as np
 
 from .config import Preset
 from .data import network_image
-from .inference import OptimizerSettings, refine, top_candidates
+from .inference import METHODS_USING_R, OptimizerSettings, refine, top_candidates
 
 
 def _padded_batches(images: np.ndarray, batch: int):
@@ -27,31 +27,39 @@ def _padded_batches(images: np.ndarray, batch: int):
         yield i, images[i:i + batch]
 
 
-def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.ndarray, bank: np.ndarray, n: int,
-                     R: int, seed: int = 0, batch: int = 10, settings: OptimizerSettings = OptimizerSettings()):
-    """Predict with each of ``methods`` for network ``images [E, S, S, 4]``, scoring the bank once.
+def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.ndarray, bank: np.ndarray,
+                     settings: Sequence[tuple[int, int]], seed: int = 0, batch: int = 10,
+                     optimizer: OptimizerSettings = OptimizerSettings()):
+    """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` for network
+    ``images [E, S, S, 4]``, scoring the bank once (its top ``max n``; a smaller n takes the
+    first n of them).
 
-    Returns ``(starts, predictions, seconds)``: the EBM's top ``n`` bank motions per image
-    ``[E, n, 101, 11]``; per method ``(candidates [E, K, 101, 11], energies [E, K])`` ranked as
-    :func:`~dmo_jax.inference.predict` ranks them (same keys, same result); and the wall time
-    of the bank scoring and of each method (``seconds["bank"]``, ``seconds[method]``).
+    Returns ``(starts, predictions, seconds)``: the EBM's top ``max n`` bank motions per image
+    ``[E, max n, 101, 11]``; per ``(method, n, R)`` the ranked ``(candidates [E, K, 101, 11],
+    energies [E, K])`` that :func:`~dmo_jax.inference.predict` returns with the same keys;
+    the wall time of the bank scoring (``seconds["bank"]``) and of each ``(method, n, R)``.
     """
     e, batch = len(images), min(batch, len(images))
     bank = jax.numpy.asarray(bank)
+    n_max = max(n for n, _ in settings)
     t0 = time.perf_counter()
-    starts = [np.asarray(top_candidates(models, x, bank, preset=preset, n=n)) for _, x in _padded_batches(images, batch)]
+    starts = [np.asarray(top_candidates(models, x, bank, preset=preset, n=n_max))
+              for _, x in _padded_batches(images, batch)]
     seconds = {"bank": time.perf_counter() - t0}
     predictions = {}
-    for method in methods:
-        t0 = time.perf_counter()
-        cands, energies = [], []
-        for (i, x), start in zip(_padded_batches(images, batch), starts):
-            key = jax.random.fold_in(jax.random.key(seed), i)
-            out = refine(models, x, start, key, preset=preset, method=method, R=R, settings=settings)
-            cands.append(np.asarray(out.candidates))
-            energies.append(np.asarray(out.energies))
-        predictions[method] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
-        seconds[method] = time.perf_counter() - t0
+    for n, R in settings:
+        for method in methods:
+            if (method, n, R) in predictions:
+                continue
+            t0 = time.perf_counter()
+            cands, energies = [], []
+            for (i, x), start in zip(_padded_batches(images, batch), starts):
+                key = jax.random.fold_in(jax.random.key(seed), i)
+                out = refine(models, x, start[:, :n], key, preset=preset, method=method, R=R, settings=optimizer)
+                cands.append(np.asarray(out.candidates))
+                energies.append(np.asarray(out.energies))
+            predictions[method, n, R] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
+            seconds[method, n, R] = time.perf_counter() - t0
     return np.concatenate(starts)[:e], predictions, seconds
 
 
@@ -77,14 +85,16 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
             "optimised_first": round(float(np.mean(~is_start)), 3)}
 
 
-def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root, n: int = 8,
-                     R: int = 1, episodes: int = 100, backend: str = "auto", negatives: str = "in-data+vae",
-                     dmo_train_iters: int | None = None, seed: int = 0, viz_dir=None, log=None) -> list[dict]:
-    """Predict with each of ``methods`` on the first ``episodes`` test images of a task (the
-    bank scored once for all) and execute.
+def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
+                     settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int = 100, backend: str = "auto",
+                     negatives: str = "in-data+vae", dmo_train_iters: int | None = None, seed: int = 0,
+                     viz_dir=None) -> list[dict]:
+    """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
+    ``episodes`` test images of a task (the bank scored once for all) and execute.
 
-    Returns, per method, the ``run_episodes`` result plus ``method``, ``n``, ``R``,
-    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`.
+    Returns one result per setting and method (settings outer; a method that ignores R once
+    per n): the ``run_episodes`` result plus ``method``, ``n``, ``R``, ``predict_seconds`` (bank scoring + the method) and
+    :func:`motion_diagnostics`.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split
@@ -100,28 +110,31 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters)
     episodes = min(episodes, len(test))
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
-    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, n, R, seed)
+    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)
-    results = []
-    for method in methods:
-        cands, energies = predictions[method]
-        result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
-        if viz_dir is not None:
-            from .visualize import save_episode_visuals
+    results, done = [], set()
+    for n, R in settings:
+        for method in methods:
+            if (method, n, R if method in METHODS_USING_R else None) in done:  # R changes nothing
+                continue
+            done.add((method, n, R if method in METHODS_USING_R else None))
+            cands, energies = predictions[method, n, R]
+            result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
+            if viz_dir is not None:
+                from .visualize import save_episode_visuals
 
-            save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset,
-                                 label=method if len(methods) > 1 else "")
-        diagnostics = motion_diagnostics(starts, cands, test.motions[:episodes], intrinsics, preset.image_size)
-        results.append({"method": method, "n": n, "R": R, **result,
-                        "predict_seconds": round(seconds["bank"] + seconds[method], 2), **diagnostics})
-        if log is not None:
-            log(results[-1])
+                label = f"{method}_n{n}_R{R}" if len(methods) > 1 or len(settings) > 1 else ""
+                save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
+            diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
+                                             preset.image_size)
+            results.append({"method": method, "n": n, "R": R, **result,
+                            "predict_seconds": round(seconds["bank"] + seconds[method, n, R], 2), **diagnostics})
     return results
 
 
-def evaluate_method(task_name: str, method: str, **kwargs) -> dict:
-    """:func:`evaluate_methods` for one method."""
-    return evaluate_methods(task_name, [method], **kwargs)[0]
+def evaluate_method(task_name: str, method: str, *, n: int = 8, R: int = 1, **kwargs) -> dict:
+    """:func:`evaluate_methods` for one method and one ``(n, R)``."""
+    return evaluate_methods(task_name, [method], settings=[(n, R)], **kwargs)[0]
 
 
 def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,

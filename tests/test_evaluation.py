@@ -39,22 +39,26 @@ def trained(tmp_path_factory):
 def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     data, work = trained
     out = tmp_path / "r.json"
-    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
+    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(work), "--episodes", "4", "--n", "2", "--sweep", "R=0,2", "--backend", "mujoco",
                 "--json", str(out), "--save-viz", str(tmp_path / "viz"))
     table = proc.stdout.splitlines()
     assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
-    assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0", "dmo n=2 R=2"]
+    # sort ignores R: one row, not one per R
+    assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0", "sort n=2", "dmo n=2 R=2"]
     payload = json.loads(out.read_text())
-    assert payload["settings"]["method"] == "dmo" and payload["settings"]["preset"] == "tiny"
-    assert [(r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [(TASK, 2, 0, 4), (TASK, 2, 2, 4)]
+    assert payload["settings"]["method"] == ["dmo", "sort"] and payload["settings"]["preset"] == "tiny"
+    assert [(r["method"], r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [
+        ("dmo", TASK, 2, 0, 4), ("sort", TASK, 2, 0, 4), ("dmo", TASK, 2, 2, 4)]
+    # with R = 0 the DMO returns the EBM's ranking, as sort does
+    assert payload["results"][0]["episode_success"] == payload["results"][1]["episode_success"]
     for r in payload["results"]:
         assert r["successes"] == sum(r["episode_success"]) and r["success_rate"] == r["successes"] / 4
         assert all(0 <= c < 2 for c in r["candidate_used"])
-    assert payload["task"] == TASK and payload["episodes"] == 8
+    assert payload["task"] == TASK and payload["episodes"] == 12
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
     pngs, gifs = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.gif"))
-    assert len(pngs) == len(gifs) == 4
+    assert len(pngs) == len(gifs) == 12 and any("_sort_n2_R0_" in p.name for p in pngs)
     assert gifs[0].read_bytes()[:6] == b"GIF89a"
 
 

@@ -36,6 +36,10 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--variant", default="concat", choices=VARIANTS)
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES)
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig), e.g. "
+                        "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
+                        "same --workdir")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
@@ -50,7 +54,10 @@ def train_all_main(argv: list[str] | None = None) -> None:
 
     non_negative("--seed", args.seed)
     enable_compilation_cache()
-    preset = get_preset(args.preset, args.variant)
+    try:
+        preset = get_preset(args.preset, args.variant).with_train_overrides(args.set)
+    except ValueError as err:
+        _fail(str(err))
     names = task_names(args.tasks)
     data = args.data or default_data_dir(preset.image_size)
     if args.json:
@@ -61,7 +68,8 @@ def train_all_main(argv: list[str] | None = None) -> None:
     training.maybe_initialize_distributed()
     summaries, start = {}, time.perf_counter()
     for name in names:
-        print(f"[{name}] preset {preset.name}, variant {preset.variant}, negatives {args.negatives}", file=sys.stderr)
+        print(f"[{name}] preset {preset.name}, variant {preset.variant}, negatives {args.negatives}"
+              + (f", {', '.join(args.set)}" if args.set else ""), file=sys.stderr)
         try:
             summaries[name] = workflow.train_task(name, preset, data, args.workdir, args.negatives, args.dmo_steps,
                                                   args.seed, log=lambda m: print(m, file=sys.stderr))

@@ -128,6 +128,26 @@ class Preset:
     def with_compute_dtype(self, dtype: str) -> "Preset":
         return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
 
+    def with_train_overrides(self, overrides: list[str]) -> "Preset":
+        """This preset with training settings replaced, each given as ``"field=value"`` with a
+        field of :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``); raises ``ValueError``
+        naming the bad item and the valid fields."""
+        fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+        changes = {}
+        for item in overrides:
+            name, sep, text = item.partition("=")
+            if not sep or name not in fields:
+                raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
+            kind = type(getattr(self.train, name))
+            try:
+                value = kind(text)
+            except ValueError:
+                raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
+            if value < (0 if kind is float or name.endswith("_negatives") else 1):
+                raise ValueError(f"--set {item!r}: {name} must be {'>= 0' if value < 0 else 'positive'}")
+            changes[name] = value
+        return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes))
+
 
 PAPER = Preset(name="paper", image_size=256)
 

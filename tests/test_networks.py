@@ -200,3 +200,11 @@ def test_unknown_names_raise_clear_errors():
         get_preset("huge")
     with pytest.raises(ValueError, match="concat, wo_concat, gap, vit"):
         get_preset("tiny", variant="resnet")
+
+
+def test_train_overrides_replace_only_the_named_settings():
+    cpu = get_preset("cpu")
+    longer = cpu.with_train_overrides(["dmo_steps=2400", "dmo_z_weight=30", "ebm_vae_negatives=0"])
+    assert (longer.train.dmo_steps, longer.train.dmo_z_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
+    assert longer.train.ebm_steps == cpu.train.ebm_steps and longer.encoder == cpu.encoder
+    assert cpu.with_train_overrides([]) == cpu

@@ -279,7 +279,14 @@ def benchmark_main(argv: list[str] | None = None) -> None:
         check_output_file(args.out, "--out")
 
     if args.only is None:
-        result = {section: _benchmark_section_in_subprocess(section, args) for section in BENCHMARK_SECTIONS}
+        result = {}
+        for section in BENCHMARK_SECTIONS:
+            try:
+                result[section] = _benchmark_section_in_subprocess(section, args)
+            except RuntimeError as err:
+                if args.out and result:  # keep the sections already measured
+                    _write_json(args.out, result)
+                _fail(f"{err}{f'; the sections before it are in {args.out}' if args.out and result else ''}")
         text = lambda r: "\n\n".join(_format_benchmark(s, r[s]) for s in BENCHMARK_SECTIONS)  # noqa: E731
     else:
         result = _benchmark_section(args.only, args)
@@ -326,8 +333,8 @@ def _benchmark_section_in_subprocess(section: str, args) -> dict:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
     proc = subprocess.run([sys.executable, "-c", code, *argv], cwd=root, env=env, stdout=subprocess.PIPE, text=True)
     if proc.returncode != 0:
-        _fail(f"benchmark section {section!r} failed (exit status {proc.returncode}); rerun it alone with "
-              f"bin/benchmark --only {section}")
+        raise RuntimeError(f"benchmark section {section!r} failed (exit status {proc.returncode}); rerun it alone "
+                           f"with bin/benchmark --only {section}")
     print(f"[benchmark] {section} done in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return json.loads(proc.stdout)
 

@@ -35,9 +35,9 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     first n of them).
 
     Returns ``(starts, predictions, seconds)``: the EBM's top ``max n`` bank motions per image
-    ``[E, max n, 101, 11]``; per ``(method, n, R)`` the ranked ``(candidates [E, K, 101, 11],
+    ``[E, max n, 101, 11]``; per :func:`prediction_key` the ranked ``(candidates [E, K, 101, 11],
     energies [E, K])`` that :func:`~dmo_jax.inference.predict` returns with the same keys;
-    the wall time of the bank scoring (``seconds["bank"]``) and of each ``(method, n, R)``.
+    the wall time of the bank scoring (``seconds["bank"]``) and of each prediction.
     """
     e, batch = len(images), min(batch, len(images))
     bank = jax.numpy.asarray(bank)
@@ -49,7 +49,8 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     predictions = {}
     for n, R in settings:
         for method in methods:
-            if (method, n, R) in predictions:
+            slot = prediction_key(method, n, R)
+            if slot in predictions:
                 continue
             t0 = time.perf_counter()
             cands, energies = [], []
@@ -58,9 +59,15 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
                 out = refine(models, x, start[:, :n], key, preset=preset, method=method, R=R, settings=optimizer)
                 cands.append(np.asarray(out.candidates))
                 energies.append(np.asarray(out.energies))
-            predictions[method, n, R] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
-            seconds[method, n, R] = time.perf_counter() - t0
+            predictions[slot] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
+            seconds[slot] = time.perf_counter() - t0
     return np.concatenate(starts)[:e], predictions, seconds
+
+
+def prediction_key(method: str, n: int, R: int) -> tuple:
+    """``(method, n, R)``, with R dropped (``None``) for methods that ignore it: they are
+    predicted and executed once per n."""
+    return method, n, R if method in METHODS_USING_R else None
 
 
 def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstrations: np.ndarray, intrinsics,
@@ -115,10 +122,11 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     results, done = [], set()
     for n, R in settings:
         for method in methods:
-            if (method, n, R if method in METHODS_USING_R else None) in done:  # R changes nothing
+            key = prediction_key(method, n, R)
+            if key in done:
                 continue
-            done.add((method, n, R if method in METHODS_USING_R else None))
-            cands, energies = predictions[method, n, R]
+            done.add(key)
+            cands, energies = predictions[key]
             result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
             if viz_dir is not None:
                 from .visualize import save_episode_visuals
@@ -128,7 +136,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
             diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
                                              preset.image_size)
             results.append({"method": method, "n": n, "R": R, **result,
-                            "predict_seconds": round(seconds["bank"] + seconds[method, n, R], 2), **diagnostics})
+                            "predict_seconds": round(seconds["bank"] + seconds[key], 2), **diagnostics})
     return results
 
 

@@ -100,8 +100,8 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     ``episodes`` test images of a task (the bank scored once for all) and execute.
 
     Returns one result per setting and method (settings outer; a method that ignores R once
-    per n): the ``run_episodes`` result plus ``method``, ``n``, ``R``, ``predict_seconds`` (bank scoring + the method) and
-    :func:`motion_diagnostics`.
+    per n): the ``run_episodes`` result plus ``method``, ``n``, ``R``, ``predict_seconds``
+    (bank scoring + the method) and :func:`motion_diagnostics`.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split

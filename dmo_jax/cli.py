@@ -225,13 +225,9 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
 def _setting_label(result: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``expert``: a result's row in the success table."""
-    from dmo_jax.inference import METHODS_USING_R
-    from envs.evaluation import WORLD_METHODS
-
-    method = result["method"]
-    if method in WORLD_METHODS:
-        return method
-    return f"{method} n={result['n']}" + (f" R={result['R']}" if method in METHODS_USING_R else "")
+    if "n" not in result:  # a world method (expert, blind)
+        return result["method"]
+    return f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
 
 
 def cost_main(argv: list[str] | None = None) -> None:

@@ -100,8 +100,8 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     ``episodes`` test images of a task (the bank scored once for all) and execute.
 
     Returns one result per setting and method (settings outer; a method that ignores R once
-    per n): the ``run_episodes`` result plus ``method``, ``n``, ``R``, ``predict_seconds``
-    (bank scoring + the method) and :func:`motion_diagnostics`.
+    per n, with ``R`` None): the ``run_episodes`` result plus ``method``, ``n``, ``R``,
+    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split
@@ -119,24 +119,18 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)
-    results, done = [], set()
-    for n, R in settings:
-        for method in methods:
-            key = prediction_key(method, n, R)
-            if key in done:
-                continue
-            done.add(key)
-            cands, energies = predictions[key]
-            result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
-            if viz_dir is not None:
-                from .visualize import save_episode_visuals
+    results = []
+    for (method, n, R), (cands, energies) in predictions.items():
+        result = evaluation.run_episodes(task_name, test, cands[:, :n], backend)
+        if viz_dir is not None:
+            from .visualize import save_episode_visuals
 
-                label = f"{method}_n{n}_R{R}" if len(methods) > 1 or len(settings) > 1 else ""
-                save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
-            diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
-                                             preset.image_size)
-            results.append({"method": method, "n": n, "R": R, **result,
-                            "predict_seconds": round(seconds["bank"] + seconds[key], 2), **diagnostics})
+            label = f"{method}_n{n}" + ("" if R is None else f"_R{R}") if len(predictions) > 1 else ""
+            save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
+        diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
+                                         preset.image_size)
+        results.append({"method": method, "n": n, "R": R, **result,
+                        "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics})
     return results
 
 
@@ -165,9 +159,10 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
     feature = ebm.encode(ebm_params, jnp.asarray(test.images))
     energies = jax.vmap(lambda f, c: ebm.energy(ebm_params, f, c))(feature, cands)
     winners = np.asarray(jnp.argmin(energies, axis=-1))
+    in_data = preset.train.ebm_gt_negatives if negatives == "in-data+vae" else 0  # candidates 1..in_data
     misses = []
     for i in np.flatnonzero(winners != 0):
         w = int(winners[i])
-        misses.append({"episode": int(i), "winner": "in-data" if w <= 31 else "vae",
+        misses.append({"episode": int(i), "winner": "in-data" if w <= in_data else "vae",
                        "distance_m": float(losses.position_error(cands[i, w][None], cands[i, 0][None], intrinsics, size))})
     return {"task": task_name, "episodes": len(winners), "top1": float(np.mean(winners == 0)), "misses": misses}

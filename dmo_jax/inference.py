@@ -119,15 +119,16 @@ def _is_integer(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
-def check_arrays(image, bank, key) -> None:
+def check_arrays(image, bank, key, bank_name: str = "bank") -> None:
     """dtype checks (always) and value checks (concrete arrays only) of :func:`predict`'s
     arrays (``key`` None: not checked); raises ``ValueError`` naming what is wrong and what was
-    expected."""
+    expected (the motions as ``bank_name``)."""
     if not jnp.issubdtype(image.dtype, jnp.floating):
         raise ValueError(f"image must be floating-point (RGB in [0, 1] + depth mapped to [0, 1], see "
                          f"dmo_jax.data.network_image), got {describe_array(image)}")
     if not jnp.issubdtype(bank.dtype, jnp.floating):
-        raise ValueError(f"bank must be floating-point [N, {NUM_STEPS}, {POSE_DIM}] motions, got {describe_array(bank)}")
+        raise ValueError(f"{bank_name} must be floating-point [N, {NUM_STEPS}, {POSE_DIM}] motions, got "
+                         f"{describe_array(bank)}")
     if key is not None:
         typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
         if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
@@ -143,7 +144,7 @@ def check_arrays(image, bank, key) -> None:
     if _is_concrete(bank):
         bad = count_non_finite(bank)
         if bad:
-            raise ValueError(f"bank contains {bad} NaN or inf value(s); expected finite motions")
+            raise ValueError(f"{bank_name} contains {bad} NaN or inf value(s); expected finite motions")
 
 
 def _shape_table(tree) -> dict[str, tuple]:
@@ -364,19 +365,16 @@ def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *
             or shape[-3] < 1 or (len(shape) == 4 and shape[0] != image_shape[0])):
         raise ValueError(f"start must be [n, {NUM_STEPS}, {POSE_DIM}] for one image or [B, n, {NUM_STEPS}, "
                          f"{POSE_DIM}] for images [B, S, S, 4], got start {shape} for image {image_shape}")
-    if not jnp.issubdtype(start.dtype, jnp.floating):
-        raise ValueError(f"start must be floating-point motions, got {describe_array(start)}")
-    if _is_concrete(start) and count_non_finite(start):
-        raise ValueError(f"start contains {count_non_finite(start)} NaN or inf value(s); expected finite motions")
     flat = start.reshape((-1,) + shape[-2:])
-    preset, image, _, key = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk)
+    preset, image, _, key = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk, "start")
     return _refine_jit(models, image, start, key, preset=preset, method=method,
                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
 
 
-def _checked_call(models, preset, method, image, bank, key, n, R, chunk):
+def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank"):
     """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
-    (``key`` None: not used); returns ``(preset, image, bank, key)`` as arrays and a Preset."""
+    (``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
+    ``(preset, image, bank, key)`` as arrays and a Preset."""
     if isinstance(preset, str):
         preset = get_preset(preset)
     if not isinstance(preset, Preset):
@@ -398,7 +396,7 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk):
         raise ValueError(f"chunk must be >= 1, got {chunk}")
     if key is not None:
         key = key if hasattr(key, "dtype") else np.asarray(key)
-    check_arrays(image, bank, key)
+    check_arrays(image, bank, key, bank_name)
     check_params(models.ebm, preset, "ebm")
     if method == "dmo":
         check_params(models.dmo, preset, "dmo")

@@ -10,6 +10,7 @@ step whose loss or gradients are not finite. Batches and keys are pure functions
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import time
@@ -109,8 +110,11 @@ class ModelSpec:
     config: TrainConfig
 
 
-def vae_spec(preset: Preset, heldout: MotionDataset | None = None) -> ModelSpec:
+def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=None) -> ModelSpec:
+    """``mean_pose [11]``: the training motions' mean pose, where the decoder starts
+    (:meth:`VAENet.init_at_mean`); without it the decoder starts near zero."""
     net, cfg = VAENet.from_preset(preset), preset.train
+    init_fn = net.init if mean_pose is None else functools.partial(net.init_at_mean, mean_pose=mean_pose)
 
     def loss_fn(params, batch, key, extra):
         return losses.vae_loss(net, params, batch["motions"], key, cfg)
@@ -123,7 +127,7 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None) -> ModelSpec:
     def eval_fn(params, extra):
         return evaluate(params, jnp.asarray(heldout.motions))
 
-    return ModelSpec("vae", net.init, loss_fn, eval_fn if heldout is not None else None,
+    return ModelSpec("vae", init_fn, loss_fn, eval_fn if heldout is not None else None,
                      cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
 
 

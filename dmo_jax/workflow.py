@@ -75,7 +75,7 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
     summary = {}
     t0 = time.perf_counter()
-    vae_spec = training.vae_spec(preset, heldout)
+    vae_spec = training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1)))
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
     ebm_spec = training.ebm_spec(preset, negatives, heldout)
     _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset.variant, negatives), extra=vae_params,

@@ -49,7 +49,7 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     payload = json.loads(out.read_text())
     assert payload["settings"]["method"] == ["dmo", "sort"] and payload["settings"]["preset"] == "tiny"
     assert [(r["method"], r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [
-        ("dmo", TASK, 2, 0, 4), ("sort", TASK, 2, 0, 4), ("dmo", TASK, 2, 2, 4)]
+        ("dmo", TASK, 2, 0, 4), ("sort", TASK, 2, None, 4), ("dmo", TASK, 2, 2, 4)]
     # with R = 0 the DMO returns the EBM's ranking, as sort does
     assert payload["results"][0]["episode_success"] == payload["results"][1]["episode_success"]
     for r in payload["results"]:
@@ -58,7 +58,7 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     assert payload["task"] == TASK and payload["episodes"] == 12
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
     pngs, gifs = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.gif"))
-    assert len(pngs) == len(gifs) == 12 and any("_sort_n2_R0_" in p.name for p in pngs)
+    assert len(pngs) == len(gifs) == 12 and any("_sort_n2_" in p.name for p in pngs)
     assert gifs[0].read_bytes()[:6] == b"GIF89a"
 
 

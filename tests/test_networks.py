@@ -194,6 +194,18 @@ def test_vae_shapes_and_time_channel():
     np.testing.assert_allclose(sample(params, motions, jax.random.key(16), 0.0), out, atol=1e-5)
 
 
+def test_vae_initialised_at_the_mean_pose_decodes_it_for_any_latent():
+    vae = VAENet.from_preset("tiny")
+    mean_pose = np.array([0.1, -0.2, 1.5, 1, 0, 0, 0, -1, 0, 0.3, 0.0], np.float32)  # z 1.5 m, as the camera sees
+    params = vae.init_at_mean(jax.random.key(0), mean_pose)
+    out = vae.decode(params, jax.random.normal(jax.random.key(1), (3, vae.config.latent_dim)))
+    np.testing.assert_allclose(out[..., :10], np.broadcast_to(mean_pose[:10], (3, NUM_STEPS, 10)), atol=1e-6)
+    default = vae.decode(vae.init(jax.random.key(0)), jnp.zeros((1, vae.config.latent_dim)))
+    assert np.abs(default[..., 2] - 1.5).mean() > 0.5  # what the mean start is for
+    with pytest.raises(ValueError, match="mean_pose must be 11 finite numbers"):
+        vae.init_at_mean(jax.random.key(0), mean_pose[:10])
+
+
 # --------------------------------------------------------------------------- config
 def test_unknown_names_raise_clear_errors():
     with pytest.raises(ValueError, match="tiny, cpu, paper"):

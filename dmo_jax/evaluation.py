@@ -142,8 +142,9 @@ def evaluate_method(task_name: str, method: str, *, n: int = 8, R: int = 1, **kw
 def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
                        negatives: str = "in-data+vae") -> dict:
     """The held-out EBM ranking of ``bin/train_all`` (``training.heldout_ebm_candidates``), with
-    every miss explained: which kind of negative won and how far its poses lie from the
-    positive's (mean 3-D distance, metres)."""
+    every miss explained: the winning ``candidate``'s index, which kind of negative it is
+    (``winner``: another scene's recorded motion, "in-data", or a VAE sample) and how far its
+    poses lie from the positive's (``distance_m``, mean 3-D distance in metres)."""
     import jax.numpy as jnp
 
     from . import losses, training
@@ -156,13 +157,17 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
     vae_params, _ = training.load_params(paths.vae(), training.vae_spec(preset))
     ebm = EBMNet(preset)
     cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)
-    feature = ebm.encode(ebm_params, jnp.asarray(test.images))
-    energies = jax.vmap(lambda f, c: ebm.energy(ebm_params, f, c))(feature, cands)
+
+    @jax.jit
+    def score(params, images, candidates):
+        return jax.vmap(lambda f, c: ebm.energy(params, f, c))(ebm.encode(params, images), candidates)
+
+    energies = score(ebm_params, jnp.asarray(test.images), cands)
     winners = np.asarray(jnp.argmin(energies, axis=-1))
-    in_data = preset.train.ebm_gt_negatives if negatives == "in-data+vae" else 0  # candidates 1..in_data
     misses = []
     for i in np.flatnonzero(winners != 0):
         w = int(winners[i])
-        misses.append({"episode": int(i), "winner": "in-data" if w <= in_data else "vae",
+        misses.append({"episode": int(i), "candidate": w,
+                       "winner": "in-data" if w <= training.HELDOUT_GT_NEGATIVES else "vae",
                        "distance_m": float(losses.position_error(cands[i, w][None], cands[i, 0][None], intrinsics, size))})
     return {"task": task_name, "episodes": len(winners), "top1": float(np.mean(winners == 0)), "misses": misses}

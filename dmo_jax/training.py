@@ -131,11 +131,16 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
                      cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
 
 
+#: The held-out ranking's negatives: the paper's counts, whatever the preset trains with.
+HELDOUT_GT_NEGATIVES, HELDOUT_VAE_NEGATIVES = 31, 32
+
+
 def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
-    """The EBM's held-out ranking problem: each of ``motions [N, 101, 11]`` first, then the
-    paper's 63 negatives (31 other held-out motions + 32 VAE samples at 2 sigma), whatever
-    counts the preset trains with; a fixed key, so every evaluation ranks the same sets."""
-    counts = dataclasses.replace(preset.train, ebm_gt_negatives=31, ebm_vae_negatives=32)
+    """The EBM's held-out ranking problem: each of ``motions [N, 101, 11]`` first (index 0),
+    then the paper's 63 negatives, 31 other held-out motions (indices 1..31) and 32 VAE samples
+    at 2 sigma; a fixed key, so every evaluation ranks the same sets."""
+    counts = dataclasses.replace(preset.train, ebm_gt_negatives=HELDOUT_GT_NEGATIVES,
+                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES)
     return losses.ebm_candidates(VAENet.from_preset(preset), vae_params, jnp.asarray(motions),
                                  jax.random.key(1234), counts, "in-data+vae")
 
@@ -376,10 +381,10 @@ def _truncate_metrics(path: Path, step: int) -> None:
         except (ValueError, KeyError, TypeError):
             return False
 
+    from envs.dataset import atomic_write_text
+
     lines = [l for l in path.read_text().splitlines() if l.strip() and kept(l)]
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("".join(l + "\n" for l in lines))
-    tmp.replace(path)
+    atomic_write_text(path, "".join(l + "\n" for l in lines))
 
 
 def _last_heldout(path: Path) -> dict:

@@ -62,6 +62,26 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     assert gifs[0].read_bytes()[:6] == b"GIF89a"
 
 
+def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
+    from dmo_jax import training
+
+    data, work = trained
+    proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work))
+    result = json.loads(proc.stdout[: proc.stdout.rindex("}") + 1])
+    metrics = workflow.RunPaths.of(work, TASK, TINY).ebm("concat", "in-data+vae") / "metrics.jsonl"
+    top1 = [r["heldout_top1"] for r in map(json.loads, metrics.read_text().splitlines()) if "heldout_top1" in r]
+    assert result["episodes"] == 4 and result["top1"] == pytest.approx(top1[-1])
+    assert len(result["misses"]) == round((1 - result["top1"]) * 4)
+    # the label says what won: another scene's recorded motion, or a VAE sample
+    vae_params, _ = training.load_params(workflow.RunPaths.of(work, TASK, TINY).vae(), training.vae_spec(TINY))
+    test = dataset.load_split(data, TASK, "test")
+    cands = np.asarray(training.heldout_ebm_candidates(TINY, vae_params, test.motions))
+    for m in result["misses"]:
+        winner = cands[m["episode"], m["candidate"]]
+        recorded = any(np.array_equal(winner, test.motions[j]) for j in range(4) if j != m["episode"])
+        assert m["winner"] == ("in-data" if recorded else "vae") and m["distance_m"] >= 0
+
+
 def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path):
     from dmo_jax.evaluation import evaluate_method
 

@@ -118,7 +118,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--method", required=True,
                         help=f"one of {', '.join(WORLD_METHODS + METHODS)}, or a comma-separated list (learned "
-                        "methods then share one scoring of the bank); expert / blind need no model, the others "
+                        "methods then share one scoring of the bank); expert / blind / nearest (an oracle: the training motion closest to the scene's recorded one) need no model, the others "
                         "use bin/train_all's networks")
     parser.add_argument("--n", type=int, default=8, help="candidates kept from the bank (default 8)")
     parser.add_argument("--R", type=int, default=1, help="DMO refinements at prediction (default 1)")
@@ -225,7 +225,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
 def _setting_label(result: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``expert``: a result's row in the success table."""
-    if "n" not in result:  # a world method (expert, blind)
+    if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]
     return f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
 

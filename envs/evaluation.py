@@ -2,7 +2,9 @@
 
 Methods that need no learned model live here: ``expert`` replays the test split's recorded
 motions; ``blind`` executes, on every test scene, the one training motion closest to the
-mean training motion (a motion that ignores the image). Learned methods hand their ranked
+mean training motion (a motion that ignores the image); ``nearest`` is an oracle that reads
+the answer: the training motion closest to the scene's recorded motion, the best a method that
+only ranks the bank could pick. Learned methods hand their ranked
 candidates to :func:`execute_candidates`, which falls back to the next candidate when one
 is abandoned (more than 10 unreachable waypoints), as the paper's evaluator does.
 """
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dmo_jax import motion as motion_lib
 from envs import execution
 from envs.dataset import Split
 
@@ -19,7 +22,7 @@ TASK_ORDER = (
     "put_umbrella_in_umbrella_stand", "reach_target", "stack_wine", "take_plate_off_colored_dish_rack",
 )
 ABBREVIATIONS = dict(zip(TASK_ORDER, ("CB", "PC", "PB", "PK", "PR", "PU", "RT", "SW", "TP")))
-WORLD_METHODS = ("expert", "blind")
+WORLD_METHODS = ("expert", "blind", "nearest")
 
 
 def execute_candidates(task, scenes, candidates: np.ndarray, backend: str = "auto") -> dict:
@@ -56,25 +59,43 @@ def blind_motion(train: Split) -> np.ndarray:
     return np.asarray(train.motions[int(np.argmin(((motions - mean) ** 2).sum(axis=(1, 2))))])
 
 
+def nearest_bank_motions(train: Split, motions: np.ndarray) -> np.ndarray:
+    """For each of ``motions [E, 101, 11]``, the training motion whose positions lie closest
+    (mean 3-D distance over the 101 poses, camera frame) -> ``[E, 101, 11]``."""
+    intrinsics = np.asarray(train.meta["intrinsics"], np.float64)
+    size = train.meta["image_size"]
+
+    def positions(m):
+        m = np.asarray(m, np.float64)
+        uv_px = motion_lib.denormalize_uv(m[..., motion_lib.UV], size)
+        return np.asarray(motion_lib.unproject(uv_px, m[..., motion_lib.Z], intrinsics))
+
+    bank = positions(train.motions)
+    chosen = [int(np.argmin(np.linalg.norm(bank - p, axis=-1).mean(axis=-1))) for p in positions(motions)]
+    return np.asarray(train.motions)[chosen]
+
+
 def world_method_candidates(method: str, test: Split, train: Split | None, episodes: int) -> np.ndarray:
     """``[episodes, 1, 101, 11]`` motions of a method that needs no learned model."""
     if method == "expert":
         return np.asarray(test.motions[:episodes])[:, None]
+    if method in ("blind", "nearest") and train is None:
+        raise ValueError(f"the {method} method needs the training split")
     if method == "blind":
-        if train is None:
-            raise ValueError("the blind method needs the training split")
         return np.repeat(blind_motion(train)[None, None], episodes, axis=0)
+    if method == "nearest":
+        return nearest_bank_motions(train, test.motions[:episodes])[:, None]
     raise ValueError(f"unknown method {method!r}; expected one of {WORLD_METHODS}")
 
 
 def evaluate_world_method(name: str, method: str, episodes: int, data_root, backend: str = "auto") -> dict:
-    """Evaluate ``expert`` or ``blind`` on the first ``episodes`` test scenes of task ``name``
+    """Evaluate ``expert``, ``blind`` or ``nearest`` on the first ``episodes`` test scenes of task ``name``
     (see :func:`run_episodes` for the result); raises ``envs.dataset.DatasetError`` if the
     data is missing."""
     from envs.dataset import load_split
 
     test = load_split(data_root, name, "test")
-    train = load_split(data_root, name, "train") if method == "blind" else None
+    train = load_split(data_root, name, "train") if method != "expert" else None
     episodes = min(episodes, len(test))
     return {"method": method, **run_episodes(name, test, world_method_candidates(method, test, train, episodes),
                                              backend)}

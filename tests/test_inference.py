@@ -1,5 +1,7 @@
 """Inference and baselines (issue 6): predict() under jit and vmap, the full-bank/R=0 case,
 zero-step baselines, the Langevin sampler's stationary law, and the evaluation path."""
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -155,6 +157,16 @@ def test_the_evaluation_path_gives_the_expert_its_success_rate(tmp_path):
     assert result["success_rate"] == 1.0 and result["candidate_used"] == [0] * 6
     world = evaluation.evaluate_world_method("reach_target", "expert", 6, tmp_path, backend="mujoco")
     assert world["episode_success"] == result["episode_success"]
+
+
+    # the nearest oracle picks, from a bank, the motion whose positions lie closest to the scene's
+    demos = np.asarray(test.motions)
+    near, far = demos.copy(), demos.copy()
+    near[..., 2], far[..., 2] = near[..., 2] + 0.01, far[..., 2] - 0.03  # depth z, metres
+    bank = dataclasses.replace(test, motions=np.concatenate([far[::-1], near[::-1]]))
+    np.testing.assert_array_equal(evaluation.nearest_bank_motions(bank, demos), near)
+    bank = dataclasses.replace(test, motions=np.concatenate([far, demos[::-1], near]))
+    np.testing.assert_array_equal(evaluation.nearest_bank_motions(bank, demos), demos)
 
 
 def test_the_no_reuse_benchmark_computes_what_predict_computes(models, bank):

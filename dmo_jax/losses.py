@@ -30,15 +30,22 @@ def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0,
 
 
 # --------------------------------------------------------------------------- VAE
-def vae_loss(vae, params, motions, key, cfg: TrainConfig):
-    """Reconstruction through a posterior sample + ``vae_kl_weight`` * KL(q(z|x) || N(0, I))."""
+def vae_loss(vae, params, motions, key, cfg: TrainConfig, step=None):
+    """Reconstruction through a posterior sample + ``vae_kl_weight`` * KL(q(z|x) || N(0, I)).
+
+    With ``cfg.vae_kl_warmup`` > 0 the KL weight rises linearly from 0 at ``step`` 0 to
+    ``vae_kl_weight`` at ``vae_kl_warmup``: with the full weight from the start, a decoder that
+    begins at the mean pose can settle there and ignore the latent (posterior collapse)."""
     k_eps, k_drop = jax.random.split(key)
     mu, logvar = vae.encode(params, motions, train=True, rng=k_drop)
     z = mu + jnp.exp(0.5 * logvar) * jax.random.normal(k_eps, mu.shape)
     recon = vae.decode(params, z, train=True, rng=jax.random.fold_in(k_drop, 1))
     rec = motion_loss(recon, motions, cfg.uv_weight)
     kl = jnp.mean(jnp.sum(-0.5 * (1 + logvar - mu**2 - jnp.exp(logvar)), axis=-1))
-    return rec + cfg.vae_kl_weight * kl, {"recon": rec, "kl": kl}
+    weight = cfg.vae_kl_weight
+    if cfg.vae_kl_warmup > 0:
+        weight = weight * jnp.minimum(1.0, jnp.asarray(0 if step is None else step, jnp.float32) / cfg.vae_kl_warmup)
+    return rec + weight * kl, {"recon": rec, "kl": kl}
 
 
 # --------------------------------------------------------------------------- EBM

@@ -95,7 +95,7 @@ def shard_batch(mesh: jax.sharding.Mesh, local: dict[str, np.ndarray]) -> dict[s
 class ModelSpec:
     """What :func:`fit` needs to train one model.
 
-    ``loss_fn(params, batch, key, extra) -> (loss, metrics)``; ``eval_fn(params, extra) ->
+    ``loss_fn(params, batch, key, extra, step) -> (loss, metrics)``; ``eval_fn(params, extra) ->
     metrics`` on held-out data (or None); ``init_fn(key) -> params``; ``meta``: what the
     checkpoint must match to be resumed or loaded.
     """
@@ -116,8 +116,8 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
     net, cfg = VAENet.from_preset(preset), preset.train
     init_fn = net.init if mean_pose is None else functools.partial(net.init_at_mean, mean_pose=mean_pose)
 
-    def loss_fn(params, batch, key, extra):
-        return losses.vae_loss(net, params, batch["motions"], key, cfg)
+    def loss_fn(params, batch, key, extra, step):
+        return losses.vae_loss(net, params, batch["motions"], key, cfg, step)
 
     @jax.jit
     def evaluate(params, motions):
@@ -152,7 +152,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {losses.NEGATIVE_MODES}")
     net, vae, cfg = EBMNet(preset), VAENet.from_preset(preset), preset.train
 
-    def loss_fn(params, batch, key, vae_params):
+    def loss_fn(params, batch, key, vae_params, step):
         k_neg, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
         cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives)
@@ -178,7 +178,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
     if r < 1:
         raise ValueError(f"the DMO needs at least one training iteration, got {r}")
 
-    def loss_fn(params, batch, key, vae_params):
+    def loss_fn(params, batch, key, vae_params, step):
         k_in, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
         inputs = jax.lax.stop_gradient(vae.sample_around(vae_params, batch["motions"], k_in, cfg.dmo_input_sigma))
@@ -204,7 +204,8 @@ def make_train_step(spec: ModelSpec, tx: optax.GradientTransformation):
     gradients are not finite leaves parameters and optimiser state unchanged."""
 
     def train_step(state: TrainState, batch, key, extra):
-        (loss, metrics), grads = jax.value_and_grad(spec.loss_fn, has_aux=True)(state.params, batch, key, extra)
+        (loss, metrics), grads = jax.value_and_grad(spec.loss_fn, has_aux=True)(state.params, batch, key, extra,
+                                                                               state.step)
         finite = jnp.isfinite(loss) & jnp.all(jnp.array([jnp.all(jnp.isfinite(g)) for g in jax.tree.leaves(grads)]))
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)

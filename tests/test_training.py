@@ -58,6 +58,17 @@ def test_vae_loss_decreases(task_data, tmp_path):
     assert _decreases(_losses(tmp_path))
 
 
+def test_vae_kl_weight_warms_up_linearly_then_stays(task_data, tmp_path):
+    preset = _fast(TINY, 14, vae_kl_warmup=10)
+    training.fit(training.vae_spec(preset), task_data[0], tmp_path, log_every=1, verbose=False)
+    records = [json.loads(l) for l in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == list(range(1, 15))
+    for r in records:  # the loss of step s (logged as s + 1) weighs the KL by min(1, s / 10) * 0.01
+        weight = preset.train.vae_kl_weight * min(1.0, (r["step"] - 1) / 10)
+        assert r["loss"] == pytest.approx(r["recon"] + weight * r["kl"], rel=1e-5)
+    assert records[0]["loss"] == pytest.approx(records[0]["recon"]) and records[0]["kl"] > 0
+
+
 def test_ebm_loss_decreases(task_data, vae_params, tmp_path):
     spec = training.ebm_spec(_fast(TINY, 40), heldout=task_data[1], augment=False)
     _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
@@ -105,7 +116,7 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
 
 def test_non_finite_steps_are_skipped_then_stop_the_run(task_data, tmp_path):
     spec = training.vae_spec(_fast(TINY, 10))
-    bad = dataclasses.replace(spec, loss_fn=lambda p, b, k, e: (jnp.nan * spec.loss_fn(p, b, k, e)[0], {}))
+    bad = dataclasses.replace(spec, loss_fn=lambda p, b, k, e, s: (jnp.nan * spec.loss_fn(p, b, k, e, s)[0], {}))
     with pytest.raises(training.TrainingError, match="non-finite.*Last good checkpoint"):
         training.fit(bad, task_data[0], tmp_path, max_consecutive_skips=3, verbose=False)
 

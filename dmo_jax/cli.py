@@ -118,8 +118,9 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--method", required=True,
                         help=f"one of {', '.join(WORLD_METHODS + METHODS)}, or a comma-separated list (learned "
-                        "methods then share one scoring of the bank); expert / blind / nearest (an oracle: the training motion closest to the scene's recorded one) need no model, the others "
-                        "use bin/train_all's networks")
+                        "methods then share one scoring of the bank); expert / blind / nearest (an oracle: the "
+                        "training motion closest to the scene's recorded one) need no model, the others use "
+                        "bin/train_all's networks")
     parser.add_argument("--n", type=int, default=8, help="candidates kept from the bank (default 8)")
     parser.add_argument("--R", type=int, default=1, help="DMO refinements at prediction (default 1)")
     parser.add_argument("--episodes", type=int, default=100, help="test episodes per task (default 100)")

@@ -171,7 +171,8 @@ CPU = Preset(
     # put_knife VAE collapsed to its mean motion (held-out uv MSE 0.054, the data's variance;
     # 0.007 with the warm-up; BENCHMARKS.md, "KL warm-up").
     train=TrainConfig(
-        vae_steps=600, vae_batch=16, vae_kl_warmup=300, ebm_steps=500, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
+        vae_steps=600, vae_batch=16, vae_kl_warmup=300,
+        ebm_steps=500, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
         dmo_steps=600, dmo_batch=12, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
     ),
 )

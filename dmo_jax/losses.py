@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .config import TrainConfig
-from .motion import GRASP, ROT6D, UV, Z, rot6d_to_matrix
+from .motion import GRASP, ROT6D, UV, Z, camera_positions, rot6d_to_matrix
 
 NEGATIVE_MODES = ("in-data+vae", "only-vae")
 
@@ -30,7 +30,7 @@ def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0,
 
 
 # --------------------------------------------------------------------------- VAE
-def vae_loss(vae, params, motions, key, cfg: TrainConfig, step=None):
+def vae_loss(vae, params, motions, key, cfg: TrainConfig, step):
     """Reconstruction through a posterior sample + ``vae_kl_weight`` * KL(q(z|x) || N(0, I)).
 
     With ``cfg.vae_kl_warmup`` > 0 the KL weight rises linearly from 0 at ``step`` 0 to
@@ -44,7 +44,7 @@ def vae_loss(vae, params, motions, key, cfg: TrainConfig, step=None):
     kl = jnp.mean(jnp.sum(-0.5 * (1 + logvar - mu**2 - jnp.exp(logvar)), axis=-1))
     weight = cfg.vae_kl_weight
     if cfg.vae_kl_warmup > 0:
-        weight = weight * jnp.minimum(1.0, jnp.asarray(0 if step is None else step, jnp.float32) / cfg.vae_kl_warmup)
+        weight = weight * jnp.minimum(1.0, jnp.asarray(step, jnp.float32) / cfg.vae_kl_warmup)
     return rec + weight * kl, {"recon": rec, "kl": kl}
 
 
@@ -122,11 +122,7 @@ def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: f
 
 def position_error(pred, target, intrinsics, image_size: int) -> jnp.ndarray:
     """Mean 3-D distance (metres) between the poses' positions, recovered from (uv, z) with K."""
-    from .motion import denormalize_uv, unproject
-
-    def xyz(m):
-        return unproject(denormalize_uv(m[..., UV], image_size), m[..., Z], intrinsics)
-
+    xyz = lambda m: camera_positions(m, intrinsics, image_size)
     return jnp.mean(jnp.linalg.norm(xyz(pred) - xyz(target), axis=-1))
 
 

@@ -118,6 +118,11 @@ def pose_to_vector(
     )
 
 
+def camera_positions(vec: jnp.ndarray, intrinsics: jnp.ndarray, image_size: int) -> jnp.ndarray:
+    """Camera-frame positions ``[..., 3]`` (metres) of pose vectors ``[..., 11]``, from (uv, z) with K."""
+    return unproject(denormalize_uv(vec[..., UV], image_size), vec[..., Z], intrinsics)
+
+
 def vector_to_pose(
     vec: jnp.ndarray,
     camera_pos: jnp.ndarray,
@@ -127,9 +132,7 @@ def vector_to_pose(
 ) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
     """Camera-frame pose vectors ``[..., 11]`` -> world (position ``[..., 3]``,
     rotation ``[..., 3, 3]``, grasp ``[...]``). The inverse of :func:`pose_to_vector`."""
-    uv_px = denormalize_uv(vec[..., UV], image_size)
-    xyz_cam = unproject(uv_px, vec[..., Z], intrinsics)
-    pos_world = xyz_cam @ camera_rot.T + camera_pos
+    pos_world = camera_positions(vec, intrinsics, image_size) @ camera_rot.T + camera_pos
     rot_world = camera_rot @ rot6d_to_matrix(vec[..., ROT6D])
     return pos_world, rot_world, vec[..., 9]
 

@@ -302,7 +302,11 @@ def fit(
     latest = mngr.latest_step()  # only committed checkpoints count; unfinished saves are ignored
     if latest is not None:  # a checkpoint of other settings fails before anything is compiled
         saved_meta = _restore(mngr, latest, ocp.args.Composite(meta=ocp.args.JsonRestore()), workdir)["meta"]
-        _check_meta(saved_meta, {k: v for k, v in meta.items() if k != "dataset"}, workdir)
+        # More steps continue a run: the learning rate, batches and keys depend on the step only.
+        _check_meta(saved_meta, {k: v for k, v in meta.items() if k not in ("dataset", "steps")}, workdir)
+        if latest > spec.steps:
+            raise TrainingError(f"checkpoint at {workdir} is at step {latest}, beyond the {spec.steps} steps "
+                                f"asked for; use another --workdir or at least {latest} steps")
     params = spec.init_fn(jax.random.fold_in(jax.random.key(seed), 0))
     state = TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
     if latest is not None:

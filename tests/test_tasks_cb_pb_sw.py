@@ -1,4 +1,6 @@
 """CB, PB, SW: seeded resets, the success predicates on hand-made states, the experts (native)."""
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -13,13 +15,9 @@ from envs.tasks import stack_wine as sw
 CLASSES = {"CB": cb.CloseBox, "PB": pb.PushButton, "SW": sw.StackWine}
 TOP = panda.TABLE_HEIGHT
 
-_TASKS = {}
-
-
+@functools.cache
 def _task(abbr):
-    if abbr not in _TASKS:
-        _TASKS[abbr] = CLASSES[abbr]()
-    return _TASKS[abbr]
+    return CLASSES[abbr]()
 
 
 def _judge(task, scene, states):

@@ -1,4 +1,6 @@
 """PK, PR, PU, TP: seeded resets, the success predicates on hand-made states, the experts (native)."""
+import functools
+
 import numpy as np
 import pytest
 
@@ -16,13 +18,9 @@ CLASSES = {
 TOP = panda.TABLE_HEIGHT
 
 
-_TASKS = {}
-
-
+@functools.cache
 def _task(abbr):
-    if abbr not in _TASKS:
-        _TASKS[abbr] = CLASSES[abbr]()
-    return _TASKS[abbr]
+    return CLASSES[abbr]()
 
 
 def _grip(task, qpos, opening):

@@ -110,8 +110,19 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
     other = training.vae_spec(get_preset("cpu"))
     with pytest.raises(training.TrainingError, match="preset: checkpoint has 'tiny', expected 'cpu'"):
         training.load_params(tmp_path, other)
-    with pytest.raises(training.TrainingError, match="other settings"):
-        training.fit(training.vae_spec(_fast(TINY, 3)), task_data[0], tmp_path, verbose=False)
+    with pytest.raises(training.TrainingError, match="seed: checkpoint has 0, expected 1"):
+        training.fit(training.vae_spec(_fast(TINY, 2)), task_data[0], tmp_path, seed=1, verbose=False)
+    with pytest.raises(training.TrainingError, match="at step 2, beyond the 1 steps"):
+        training.fit(training.vae_spec(_fast(TINY, 1)), task_data[0], tmp_path, verbose=False)
+
+
+def test_more_steps_continue_a_finished_run(task_data, tmp_path):
+    longer = training.vae_spec(_fast(TINY, 6))
+    direct, _ = training.fit(longer, task_data[0], tmp_path / "direct", verbose=False)
+    training.fit(training.vae_spec(_fast(TINY, 3)), task_data[0], tmp_path / "cont", verbose=False)
+    continued, summary = training.fit(longer, task_data[0], tmp_path / "cont", verbose=False)
+    assert summary["steps"] == 6
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), direct, continued)
 
 
 def test_non_finite_steps_are_skipped_then_stop_the_run(task_data, tmp_path):

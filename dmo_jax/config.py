@@ -75,6 +75,9 @@ class VAEConfig:
         return self.d_model
 
 
+DMO_INPUTS = ("decoded", "offset")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Training hyper-parameters of method.md ("Training"); used by the training code."""
@@ -96,9 +99,17 @@ class TrainConfig:
     dmo_train_iters: int = 5  # R during training ("Ours-5")
     dmo_infer_iters: int = 1  # R at prediction
     dmo_input_sigma: float = 1.0  # DMO input z = mu + 1 sigma eps
+    # "decoded": the DMO's inputs are the VAE's decodings of z (the paper's). "offset": the clean
+    # motion plus (decoding of z - decoding of mu), the same perturbation without the VAE's
+    # reconstruction error, which bank motions do not have.
+    dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
     dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1
     num_candidates: int = 8  # n kept by the EBM at inference
+
+    def __post_init__(self):
+        if self.dmo_inputs not in DMO_INPUTS:
+            raise ValueError(f"dmo_inputs={self.dmo_inputs!r}: expected one of {', '.join(DMO_INPUTS)}")
 
 
 @dataclass(frozen=True)
@@ -144,7 +155,7 @@ class Preset:
                 value = kind(text)
             except ValueError:
                 raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
-            if value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
+            if kind is not str and value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
                 raise ValueError(f"--set {item!r}: {name} must be {'>= 0' if value < 0 else 'positive'}")
             changes[name] = value
         return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes))

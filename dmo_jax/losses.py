@@ -95,6 +95,17 @@ def ebm_eval(ebm, params, images, candidates):
 
 
 # --------------------------------------------------------------------------- DMO
+def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig) -> jnp.ndarray:
+    """The DMO's perturbed inputs ``[B, 101, 11]`` for clean ``motions [B, 101, 11]``: VAE samples at
+    ``cfg.dmo_input_sigma``, or with ``cfg.dmo_inputs == "offset"`` the motions moved by the
+    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1])."""
+    samples = vae.sample_around(vae_params, motions, key, cfg.dmo_input_sigma)
+    if cfg.dmo_inputs == "offset":
+        samples = motions + samples - vae.decode(vae_params, vae.encode(vae_params, motions)[0])
+        samples = samples.at[..., GRASP].set(jnp.clip(samples[..., GRASP], 0.0, 1.0))
+    return jax.lax.stop_gradient(samples)
+
+
 def dmo_unroll(dmo, params, feature, motions, steps: int, train: bool = False, key=None):
     """Apply the DMO ``steps`` times to ``motions [n, 101, 11]`` reusing one ``F [H, W, C]``;
     returns every step's output ``[steps, n, 101, 11]``."""

@@ -181,13 +181,13 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
     def loss_fn(params, batch, key, vae_params, step):
         k_in, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
-        inputs = jax.lax.stop_gradient(vae.sample_around(vae_params, batch["motions"], k_in, cfg.dmo_input_sigma))
+        inputs = losses.dmo_inputs(vae, vae_params, batch["motions"], k_in, cfg)
         return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight,
                                cfg.dmo_z_weight)
 
     @jax.jit  # compiled once per run, the VAE's inputs included
     def evaluate(params, vae_params, images, motions):
-        inputs = vae.sample_around(vae_params, motions, jax.random.key(4321), cfg.dmo_input_sigma)
+        inputs = losses.dmo_inputs(vae, vae_params, motions, jax.random.key(4321), cfg)
         return losses.dmo_eval(net, params, images, inputs, motions, cfg.dmo_infer_iters, *heldout_camera, r)
 
     def eval_fn(params, vae_params):

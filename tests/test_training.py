@@ -83,6 +83,25 @@ def test_dmo_loss_decreases(task_data, vae_params, tmp_path):
     assert summary["heldout_position_before"] > 0
 
 
+def test_offset_dmo_inputs_carry_the_vae_perturbation_without_its_reconstruction_error(task_data, vae_params):
+    from dmo_jax import losses
+    from dmo_jax.vae import VAENet
+
+    vae, motions, key = VAENet.from_preset(TINY), jnp.asarray(task_data[0].motions[:4]), jax.random.key(3)
+    decoded = losses.dmo_inputs(vae, vae_params, motions, key, TINY.train)
+    offset = losses.dmo_inputs(vae, vae_params, motions, key, dataclasses.replace(TINY.train, dmo_inputs="offset"))
+    recon = vae.decode(vae_params, vae.encode(vae_params, motions)[0])
+    np.testing.assert_allclose(offset[..., :9], (motions + decoded - recon)[..., :9], atol=1e-5)
+    assert float(offset[..., 9].min()) >= 0.0 and float(offset[..., 9].max()) <= 1.0
+    # At sigma 0 the offset inputs are the clean motions; the paper's are the reconstructions.
+    at_mean = dataclasses.replace(TINY.train, dmo_input_sigma=0.0)
+    np.testing.assert_allclose(losses.dmo_inputs(vae, vae_params, motions, key, at_mean), recon, atol=1e-6)
+    clean = losses.dmo_inputs(vae, vae_params, motions, key, dataclasses.replace(at_mean, dmo_inputs="offset"))
+    np.testing.assert_allclose(clean, motions, atol=1e-5)
+    with pytest.raises(ValueError, match="dmo_inputs='noisy': expected one of decoded, offset"):
+        TINY.with_train_overrides(["dmo_inputs=noisy"])
+
+
 def test_resumed_run_ends_with_the_same_parameters(task_data, tmp_path):
     spec = training.vae_spec(_fast(TINY, 12))
     full, _ = training.fit(spec, task_data[0], tmp_path / "full", checkpoint_every=4, verbose=False)

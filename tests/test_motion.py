@@ -72,8 +72,8 @@ def test_world_pose_vector_roundtrip(x, y, z, quat, grasp, time):
     args = (CAM.position, CAM.rotation, CAM.intrinsics, CAM.image_size)
     vec = M.pose_to_vector(pos, rot, np.float64(grasp), np.float64(time), *args)
     assert vec.shape == (M.POSE_DIM,)
-    # The camera frame agrees with the camera's own projection.
-    np.testing.assert_allclose(M.denormalize_uv(vec[M.UV], 256), CAM.project(pos), atol=1e-6)
+    # The camera frame agrees with the camera's own projection (denormalize_uv computes in float32).
+    np.testing.assert_allclose(M.denormalize_uv(vec[M.UV], 256), CAM.project(pos), rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(vec[M.Z], CAM.world_to_camera(pos)[2:], atol=1e-9)
     pos2, rot2, grasp2 = M.vector_to_pose(vec, *args)
     np.testing.assert_allclose(pos2, pos, atol=1e-6)

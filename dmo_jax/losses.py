@@ -133,8 +133,8 @@ def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: f
 
 def position_error(pred, target, intrinsics, image_size: int) -> jnp.ndarray:
     """Mean 3-D distance (metres) between the poses' positions, recovered from (uv, z) with K."""
-    xyz = lambda m: camera_positions(m, intrinsics, image_size)
-    return jnp.mean(jnp.linalg.norm(xyz(pred) - xyz(target), axis=-1))
+    offsets = camera_positions(pred, intrinsics, image_size) - camera_positions(target, intrinsics, image_size)
+    return jnp.mean(jnp.linalg.norm(offsets, axis=-1))
 
 
 def dmo_eval(dmo, params, images, inputs, targets, steps: int, intrinsics, image_size: int, unroll: int = 1):

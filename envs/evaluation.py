@@ -62,10 +62,10 @@ def blind_motion(train: Split) -> np.ndarray:
 def nearest_bank_motions(train: Split, motions: np.ndarray) -> np.ndarray:
     """For each of ``motions [E, 101, 11]``, the training motion whose positions lie closest
     (mean 3-D distance over the 101 poses, camera frame) -> ``[E, 101, 11]``."""
-    intrinsics = np.asarray(train.meta["intrinsics"], np.float64)
+    intrinsics, size = np.asarray(train.meta["intrinsics"], np.float64), train.meta["image_size"]
 
     def positions(m):
-        return np.asarray(motion_lib.camera_positions(np.asarray(m, np.float64), intrinsics, train.meta["image_size"]))
+        return np.asarray(motion_lib.camera_positions(np.asarray(m, np.float64), intrinsics, size))
 
     bank = positions(train.motions)
     chosen = [int(np.argmin(np.linalg.norm(bank - p, axis=-1).mean(axis=-1))) for p in positions(motions)]

@@ -286,7 +286,7 @@ def fit(
     as an interruption would. ``extra``: a pytree passed to every step (the VAE parameters
     for the EBM and the DMO), replicated on all devices. A checkpoint is saved every
     ``checkpoint_every`` steps, at the end, and whenever ``checkpoint_minutes`` have passed since
-    the last save, so a slow model (ViT's EBM runs 250 steps in about 30 minutes on 2 cores)
+    the last save, so a slow model (ViT's EBM took about 30 minutes per 250 steps on a shared 2-core machine)
     loses at most that much work when interrupted.
     """
     workdir = Path(workdir)

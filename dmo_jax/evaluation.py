@@ -7,6 +7,7 @@ next-lowest-energy candidate is tried when one is abandoned, at most n.
 """
 from __future__ import annotations
 
+import functools
 import time
 from typing import Sequence
 
@@ -158,10 +159,7 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
     ebm = EBMNet(preset)
     cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)
 
-    @jax.jit
-    def score(params, images, candidates):
-        return jax.vmap(lambda f, c: ebm.energy(params, f, c))(ebm.encode(params, images), candidates)
-
+    score = jax.jit(functools.partial(losses.ebm_energies, ebm))
     energies = score(ebm_params, jnp.asarray(test.images), cands)
     winners = np.asarray(jnp.argmin(energies, axis=-1))
     misses = []

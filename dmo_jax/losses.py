@@ -87,13 +87,18 @@ def ebm_loss(ebm, params, images, candidates, key):
     return -jnp.mean(logp[:, 0]), {"top1": accuracy}
 
 
-def ebm_eval(ebm, params, images, candidates, images_per_chunk: int = 4):
-    """Held-out top-1: fraction of images whose positive has the lowest energy of its candidates.
+def ebm_energies(ebm, params, images, candidates, images_per_chunk: int = 4) -> jnp.ndarray:
+    """Energies ``[N, K]`` of each image's ``candidates [N, K, 101, 11]`` (inference mode).
 
     The heads run ``images_per_chunk`` images at a time: all 100 held-out images' 64 candidates at
     once needed over 20 GB for the w/o-concat variant's 202-token attention."""
     feature = ebm.encode(params, images)
-    energies = jax.lax.map(lambda fm: ebm.energy(params, *fm), (feature, candidates), batch_size=images_per_chunk)
+    return jax.lax.map(lambda fm: ebm.energy(params, *fm), (feature, candidates), batch_size=images_per_chunk)
+
+
+def ebm_eval(ebm, params, images, candidates, images_per_chunk: int = 4):
+    """Held-out top-1: fraction of images whose positive has the lowest energy of its candidates."""
+    energies = ebm_energies(ebm, params, images, candidates, images_per_chunk)
     return {"top1": jnp.mean(jnp.argmin(energies, axis=-1) == 0)}
 
 

@@ -286,8 +286,8 @@ def fit(
     as an interruption would. ``extra``: a pytree passed to every step (the VAE parameters
     for the EBM and the DMO), replicated on all devices. A checkpoint is saved every
     ``checkpoint_every`` steps, at the end, and whenever ``checkpoint_minutes`` have passed since
-    the last save, so a slow model (ViT's EBM took about 30 minutes per 250 steps on a shared 2-core machine)
-    loses at most that much work when interrupted.
+    the last save, so a slow model loses at most that much work when interrupted (ViT's EBM took
+    about 30 minutes per 250 steps on a shared 2-core machine).
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)

@@ -136,12 +136,12 @@ def test_resumed_run_ends_with_the_same_parameters(task_data, tmp_path):
 
 def test_checkpoints_are_also_saved_by_elapsed_time(task_data, tmp_path):
     spec = training.vae_spec(_fast(TINY, 4))
-    training.fit(spec, task_data[0], tmp_path / "steps", checkpoint_every=100, checkpoint_minutes=None, keep=10,
-                 verbose=False)
-    assert sorted(int(p.name) for p in (tmp_path / "steps/checkpoints").iterdir() if p.name.isdigit()) == [4]
-    training.fit(spec, task_data[0], tmp_path / "time", checkpoint_every=100, checkpoint_minutes=0.0, keep=10,
-                 verbose=False)
-    assert sorted(int(p.name) for p in (tmp_path / "time/checkpoints").iterdir() if p.name.isdigit()) == [1, 2, 3, 4]
+    saved = {}
+    for name, minutes in (("steps", None), ("time", 0.0)):
+        training.fit(spec, task_data[0], tmp_path / name, checkpoint_every=100, checkpoint_minutes=minutes, keep=10,
+                     verbose=False)
+        saved[name] = sorted(training._checkpoint_manager(tmp_path / name / "checkpoints", 10).all_steps())
+    assert saved == {"steps": [4], "time": [1, 2, 3, 4]}
 
 
 def test_trained_model_is_loaded_not_retrained(task_data, tmp_path):

@@ -191,6 +191,14 @@ def project_motions(motions: jax.Array) -> jax.Array:
             .at[..., GRASP].set(jnp.clip(motions[..., GRASP], 0.0, 1.0)))
 
 
+def default_chunk() -> int:
+    """Bank motions scored at once per image when a call does not say: 32 on a CPU, where the
+    head's activations (32 x 101 tokens; the attention weights 32 x 4 x 101 x 101) then stay in
+    the caches (bank of 1,000 on 2 cores: 0.48 s at 32, 0.67 s at 256; BENCHMARKS.md), and 256
+    on an accelerator, whose throughput needs larger products."""
+    return 32 if jax.default_backend() == "cpu" else 256
+
+
 def chunked_energy(ebm: EBMNet, params, feature, motions, chunk: int) -> jax.Array:
     """Energies of ``motions [N, 101, 11]`` under one image's ``F``, ``chunk`` at a time."""
     n = motions.shape[0]
@@ -281,7 +289,10 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
 @functools.partial(jax.jit, static_argnames=("preset", "n", "chunk"))
 def _top_candidates_jit(models, image, bank, *, preset, n, chunk):
     one = functools.partial(_top_n, preset, n, chunk, models)
-    return one(image, bank) if image.ndim == 3 else jax.vmap(one, in_axes=(0, None))(image, bank)
+    # A batch is scored one image after another: vmapped, B images would hold B chunks of the
+    # head's activations at once (10 images x 256 motions of the ViT variant's 357-token
+    # attention took 13 GB).
+    return one(image, bank) if image.ndim == 3 else jax.lax.map(lambda x: one(x, bank), image)
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "R", "chunk", "settings"))
@@ -294,17 +305,12 @@ def _refine_jit(models, image, start, key, *, preset, method, R, chunk, settings
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings"))
 def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings):
-    def one(image, key):
-        start = _top_n(preset, n, chunk, models, image, bank)
-        return _refine_one(preset, method, R, chunk, settings, models, image, start, key)
-
-    if image.ndim == 3:
-        return one(image, key)
-    return jax.vmap(one)(image, jax.random.split(key, image.shape[0]))
+    start = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
+    return _refine_jit(models, image, start, key, preset=preset, method=method, R=R, chunk=chunk, settings=settings)
 
 
 def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
-            method: str = "dmo", n: int = 8, R: int = 1, chunk: int = 256,
+            method: str = "dmo", n: int = 8, R: int = 1, chunk: int | None = None,
             settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
     """Predict motions for ``image`` with the trained networks of one task.
 
@@ -312,14 +318,15 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       models: :class:`Models` (EBM parameters; DMO parameters for ``dmo``; VAE parameters
         for ``vaebm-l`` / ``vaebm-s``).
       image: ``[S, S, 4]`` float32 network image (``dmo_jax.data.network_image``) or a
-        batch ``[B, S, S, 4]`` (vmapped; every output gains a leading B axis).
+        batch ``[B, S, S, 4]`` (every output gains a leading B axis; the bank is scored one
+        image after another, the candidates are optimised vmapped over the images).
       bank: ``[N, 101, 11]`` training motions to score.
       key: PRNG key (used by the stochastic methods).
       preset: the networks' :class:`~dmo_jax.config.Preset` (or its name).
       method: one of :data:`METHODS`.
       n: candidates kept from the bank (1 <= n <= N).
       R: DMO refinements (``dmo`` only; R = 0 returns the EBM's ranking).
-      chunk: bank motions scored at once (bounds memory).
+      chunk: bank motions scored at once per image (bounds memory); None: :func:`default_chunk`.
       settings: the baselines' step sizes and iteration counts.
 
     Returns:
@@ -333,13 +340,13 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         variant. Inside the caller's ``jax.jit`` the arrays are tracers: shapes and dtypes
         are still checked, values (NaN, range) are not.
     """
-    preset, image, bank, key = _checked_call(models, preset, method, image, bank, key, n, R, chunk)
+    preset, image, bank, key, chunk = _checked_call(models, preset, method, image, bank, key, n, R, chunk)
     return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
                         R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
-                   chunk: int = 256) -> jax.Array:
+                   chunk: int | None = None) -> jax.Array:
     """Step 2 of :func:`predict` alone: the ``n`` lowest-energy bank motions per image,
     ``[n, 101, 11]`` (or ``[B, n, 101, 11]`` for a batch of images), best first.
 
@@ -348,12 +355,12 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     ``refine(models, image, top_candidates(models, image, bank, ...), key, ...)`` equals
     ``predict(models, image, bank, key, ...)``. Raises ``ValueError`` as :func:`predict` does.
     """
-    preset, image, bank, _ = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk)
+    preset, image, bank, _, chunk = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk)
     return _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
 
 
 def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *, preset: Preset,
-           method: str = "dmo", R: int = 1, chunk: int = 256,
+           method: str = "dmo", R: int = 1, chunk: int | None = None,
            settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
     """Steps 3-4 of :func:`predict`: optimise the starting motions ``start`` (``[n, 101, 11]`` for
     an image ``[S, S, 4]``, ``[B, n, 101, 11]`` for images ``[B, S, S, 4]``; usually
@@ -366,7 +373,8 @@ def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *
         raise ValueError(f"start must be [n, {NUM_STEPS}, {POSE_DIM}] for one image or [B, n, {NUM_STEPS}, "
                          f"{POSE_DIM}] for images [B, S, S, 4], got start {shape} for image {image_shape}")
     flat = start.reshape((-1,) + shape[-2:])
-    preset, image, _, key = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk, "start")
+    preset, image, _, key, chunk = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk,
+                                                 "start")
     return _refine_jit(models, image, start, key, preset=preset, method=method,
                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
 
@@ -374,7 +382,8 @@ def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *
 def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank"):
     """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
     (``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
-    ``(preset, image, bank, key)`` as arrays and a Preset."""
+    ``(preset, image, bank, key, chunk)``: arrays, a Preset and the chunk (None: the default)."""
+    chunk = default_chunk() if chunk is None else chunk
     if isinstance(preset, str):
         preset = get_preset(preset)
     if not isinstance(preset, Preset):
@@ -402,4 +411,4 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         check_params(models.dmo, preset, "dmo")
     if method in ("vaebm-l", "vaebm-s"):
         check_params(models.vae, preset, "vae")
-    return preset, image, bank, key
+    return preset, image, bank, key, chunk

@@ -203,7 +203,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
                   f"(execution {result['seconds']:.1f} s"
                   + (f", prediction {result['predict_seconds']:.1f} s; first-ranked motion "
-                     f"{100 * result['first_error_m']:.1f} cm from the demonstration, EBM's top bank motion "
+                     f"{100 * result['first_error_m']:.1f} cm from the demonstration ("
+                     f"{100 * result['first_depth_error_m']:.1f} cm in depth), EBM's top bank motion "
                      f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
                      f"{result['optimised_first']:.0%} of scenes)" if "predict_seconds" in result else ")"),
                   file=sys.stderr)

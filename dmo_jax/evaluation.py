@@ -17,6 +17,7 @@ import numpy as np
 from .config import Preset
 from .data import network_image
 from .inference import METHODS_USING_R, OptimizerSettings, refine, top_candidates
+from .motion import Z
 
 
 def _padded_batches(images: np.ndarray, batch: int):
@@ -76,8 +77,10 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     """Where the ranked ``candidates [E, K, 101, 11]`` lie against the scenes' demonstrations,
     as mean 3-D position errors in metres (``losses.position_error``) averaged over episodes:
     ``first_error_m`` of the first-ranked candidate, ``start_error_m`` of the EBM's top bank
-    motion, ``best_start_error_m`` of the closest of the ``n`` starts; and ``optimised_first``,
-    the fraction of episodes whose first-ranked candidate is an optimised motion, not a start."""
+    motion, ``best_start_error_m`` of the closest of the ``n`` starts; ``first_depth_error_m``,
+    the part of ``first_error_m`` along the camera's viewing axis (mean |z - z_demo|, which no
+    pixel position shows); and ``optimised_first``, the fraction of episodes whose first-ranked
+    candidate is an optimised motion, not a start."""
     import jax.numpy as jnp
 
     from .losses import position_error
@@ -87,7 +90,9 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     start_errors = np.asarray(error(jnp.asarray(starts), demos))
     first = candidates[:, :1]
     is_start = np.any(np.all(first == starts, axis=(2, 3)), axis=1)
+    depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
     return {"first_error_m": round(float(np.mean(error(jnp.asarray(first), demos))), 4),
+            "first_depth_error_m": round(float(np.mean(depth_error)), 4),
             "start_error_m": round(float(np.mean(start_errors[:, 0])), 4),
             "best_start_error_m": round(float(np.mean(start_errors.min(axis=1))), 4),
             "optimised_first": round(float(np.mean(~is_start)), 3)}

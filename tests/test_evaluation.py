@@ -97,6 +97,7 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
     for r in payload["results"]:
         assert r["episodes"] == 2 and 0 <= r["success_rate"] <= 1
         assert 0 <= r["best_start_error_m"] <= r["start_error_m"] and 0 <= r["optimised_first"] <= 1
+        assert 0 < r["first_depth_error_m"] <= r["first_error_m"]  # depth is one part of the 3-D distance
     sort = payload["results"][0]
     assert sort["optimised_first"] == 0 and sort["first_error_m"] == sort["start_error_m"]
     # a method evaluated alone gets what it gets beside the others

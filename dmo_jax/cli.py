@@ -82,13 +82,14 @@ def train_all_main(argv: list[str] | None = None) -> None:
 
 
 def _summary_table(summaries: dict) -> str:
-    rows = ["| task | VAE s | EBM s | DMO s | EBM held-out top-1 | DMO position error before → after (m) |",
-            "|---|---|---|---|---|---|"]
+    rows = ["| task | VAE s | EBM s | DMO s | EBM held-out top-1 | EBM depth top-1 | DMO position error before → after (m) |",
+            "|---|---|---|---|---|---|---|"]
     for name, s in summaries.items():
         dmo = s["dmo"]
         before, after = dmo.get("heldout_position_before", float("nan")), dmo.get("heldout_position_after", float("nan"))
         rows.append(f"| {name} | {s['vae']['seconds']:.0f} | {s['ebm']['seconds']:.0f} | {dmo['seconds']:.0f} | "
-                    f"{100 * s['ebm'].get('heldout_top1', float('nan')):.1f} % | {before:.4f} → {after:.4f} |")
+                    f"{100 * s['ebm'].get('heldout_top1', float('nan')):.1f} % | "
+                    f"{100 * s['ebm'].get('heldout_depth_top1', float('nan')):.1f} % | {before:.4f} → {after:.4f} |")
     return "\n".join(rows)
 
 

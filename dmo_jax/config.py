@@ -94,6 +94,11 @@ class TrainConfig:
     ebm_gt_negatives: int = 31  # other images' ground-truth motions
     ebm_vae_negatives: int = 32  # decoded at z = mu + vae_negative_sigma * sigma * eps
     vae_negative_sigma: float = 2.0
+    # Not in the paper (0 = off): copies of the positive whose camera-frame depth drifts away
+    # linearly in time, to +-U(1/4, 1) * depth_negative_shift metres at the last pose. They
+    # project onto the positive's pixels, so only the depth read through F can rank them lower.
+    ebm_depth_negatives: int = 0
+    depth_negative_shift: float = 0.08
     dmo_steps: int = 100_000
     dmo_batch: int = 16
     dmo_train_iters: int = 5  # R during training ("Ours-5")

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .config import TrainConfig
-from .motion import GRASP, ROT6D, UV, Z, camera_positions, rot6d_to_matrix
+from .motion import GRASP, ROT6D, TIME, UV, Z, camera_positions, rot6d_to_matrix
 
 NEGATIVE_MODES = ("in-data+vae", "only-vae")
 
@@ -55,12 +55,13 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     ``in-data+vae``: ``ebm_gt_negatives`` ground-truth motions of *other* images in the batch
     (with replacement) + ``ebm_vae_negatives`` VAE samples at ``vae_negative_sigma`` decoded
     from batch motions and shuffled across the batch. ``only-vae``: all K negatives from the
-    VAE (paper Table 4 b).
+    VAE (paper Table 4 b). Either way ``ebm_depth_negatives`` copies of the positive that
+    drift in depth alone follow (:func:`depth_negatives`; none by default).
     """
     if negatives not in NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {NEGATIVE_MODES}")
     b = motions.shape[0]
-    k_gt, k_vae, k_perm = jax.random.split(key, 3)
+    k_gt, k_vae, k_perm, k_depth = jax.random.split(key, 4)
     n_gt = cfg.ebm_gt_negatives if negatives == "in-data+vae" else 0
     n_vae = cfg.ebm_vae_negatives + (cfg.ebm_gt_negatives - n_gt)
     parts = [motions[:, None]]
@@ -72,7 +73,23 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     samples = vae.sample_around(vae_params, motions, k_vae, cfg.vae_negative_sigma, num_samples=n_vae)
     flat = samples.reshape((b * n_vae,) + motions.shape[1:])
     parts.append(jax.random.permutation(k_perm, flat).reshape((b, n_vae) + motions.shape[1:]))
+    if cfg.ebm_depth_negatives:
+        parts.append(depth_negatives(motions, k_depth, cfg.ebm_depth_negatives, cfg.depth_negative_shift))
     return jax.lax.stop_gradient(jnp.concatenate(parts, axis=1))
+
+
+def depth_negatives(motions, key, num: int, max_shift: float) -> jnp.ndarray:
+    """``[B, num, 101, 11]`` copies of ``motions [B, 101, 11]`` whose depth z drifts by
+    ``t * d`` (t the normalised time, so the start pose is unchanged), with
+    ``|d| ~ U(max_shift / 4, max_shift)`` metres and a random sign per copy. uv, rotation and
+    grasp are the positive's: the copies sample F at the same pixels."""
+    k_mag, k_sign = jax.random.split(key)
+    shape = (motions.shape[0], num)
+    shift = jax.random.uniform(k_mag, shape, minval=0.25 * max_shift, maxval=max_shift)
+    shift = jnp.where(jax.random.bernoulli(k_sign, 0.5, shape), shift, -shift)
+    copies = jnp.repeat(motions[:, None], num, axis=1)
+    drift = shift[..., None, None] * copies[..., TIME]
+    return copies.at[..., Z].add(drift)
 
 
 def ebm_loss(ebm, params, images, candidates, key):

@@ -133,6 +133,8 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
 
 #: The held-out ranking's negatives: the paper's counts, whatever the preset trains with.
 HELDOUT_GT_NEGATIVES, HELDOUT_VAE_NEGATIVES = 31, 32
+#: ``depth_top1``: the positive against this many copies drifting in depth alone by up to DEPTH_SHIFT m.
+HELDOUT_DEPTH_NEGATIVES, DEPTH_SHIFT = 8, 0.08
 
 
 def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
@@ -140,7 +142,7 @@ def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
     then the paper's 63 negatives, 31 other held-out motions (indices 1..31) and 32 VAE samples
     at 2 sigma; a fixed key, so every evaluation ranks the same sets."""
     counts = dataclasses.replace(preset.train, ebm_gt_negatives=HELDOUT_GT_NEGATIVES,
-                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES)
+                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES, ebm_depth_negatives=0)
     return losses.ebm_candidates(VAENet.from_preset(preset), vae_params, jnp.asarray(motions),
                                  jax.random.key(1234), counts, "in-data+vae")
 
@@ -160,7 +162,10 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
 
     @jax.jit  # compiled once per run, the VAE's negatives included
     def evaluate(params, vae_params, images, motions):
-        return losses.ebm_eval(net, params, images, heldout_ebm_candidates(preset, vae_params, motions))
+        metrics = losses.ebm_eval(net, params, images, heldout_ebm_candidates(preset, vae_params, motions))
+        depth = losses.depth_negatives(motions, jax.random.key(4321), HELDOUT_DEPTH_NEGATIVES, DEPTH_SHIFT)
+        depth_metrics = losses.ebm_eval(net, params, images, jnp.concatenate([motions[:, None], depth], axis=1))
+        return {**metrics, "depth_top1": depth_metrics["top1"]}
 
     def eval_fn(params, vae_params):
         return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions))

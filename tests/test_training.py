@@ -73,7 +73,7 @@ def test_ebm_loss_decreases(task_data, vae_params, tmp_path):
     spec = training.ebm_spec(_fast(TINY, 40), heldout=task_data[1], augment=False)
     _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
     assert _decreases(_losses(tmp_path))
-    assert 0.0 <= summary["heldout_top1"] <= 1.0
+    assert 0.0 <= summary["heldout_top1"] <= 1.0 and 0.0 <= summary["heldout_depth_top1"] <= 1.0
 
 
 def test_dmo_loss_decreases(task_data, vae_params, tmp_path):
@@ -101,6 +101,27 @@ def test_heldout_top1_in_chunks_equals_each_image_ranked_alone(task_data, vae_pa
     # With each image's lowest-energy candidate put in first place, every positive wins.
     swapped = candidates.at[:, 0].set(candidates[jnp.arange(5), winners])
     assert float(losses.ebm_eval(ebm, params, images, swapped, images_per_chunk=2)["top1"]) == 1.0
+
+
+def test_depth_negatives_differ_from_the_positive_in_depth_alone(task_data, vae_params):
+    from dmo_jax import losses
+    from dmo_jax.vae import VAENet
+
+    motions = jnp.asarray(task_data[0].motions[:4])
+    cfg = dataclasses.replace(TINY.train, ebm_depth_negatives=3, depth_negative_shift=0.08)
+    cands = losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0), cfg)
+    assert cands.shape == (4, 1 + 3 + 4 + 3, 101, 11)  # positive, in-data, VAE, depth
+    depth = cands[:, -3:]
+    same = np.delete(np.arange(11), 2)  # every channel but z
+    np.testing.assert_array_equal(depth[..., same], jnp.broadcast_to(motions[:, None], depth.shape)[..., same])
+    drift = np.asarray(depth[..., 2] - motions[:, None, :, 2])
+    np.testing.assert_allclose(drift[..., 0], 0.0, atol=1e-6)  # the start pose is the positive's
+    end = np.abs(drift[..., -1])
+    assert end.min() >= 0.02 - 1e-5 and end.max() <= 0.08 + 1e-5
+    assert (drift[..., -1] > 0).any() and (drift[..., -1] < 0).any()  # nearer and further both occur
+    # the default, the paper's recipe, has none
+    assert losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0),
+                                 TINY.train).shape[1] == 1 + 3 + 4
 
 
 def test_offset_dmo_inputs_carry_the_vae_perturbation_without_its_reconstruction_error(task_data, vae_params):

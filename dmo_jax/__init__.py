@@ -18,6 +18,7 @@ _EXPORTS = {
     "refine": "inference",
     "Models": "inference",
     "Prediction": "inference",
+    "Ranking": "inference",
     "OptimizerSettings": "inference",
     "METHODS": "inference",
     "get_preset": "config",

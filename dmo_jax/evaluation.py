@@ -45,8 +45,11 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     bank = jax.numpy.asarray(bank)
     n_max = max(n for n, _ in settings)
     t0 = time.perf_counter()
-    starts = [np.asarray(top_candidates(models, x, bank, preset=preset, n=n_max))
-              for _, x in _padded_batches(images, batch)]
+    # F is dropped (recomputed by each refine call): kept for every image it would take 64 MB per
+    # image at the paper preset
+    rankings = [top_candidates(models, x, bank, preset=preset, n=n_max)._replace(feature=None)
+                for _, x in _padded_batches(images, batch)]
+    jax.block_until_ready(rankings)
     seconds = {"bank": time.perf_counter() - t0}
     predictions = {}
     for n, R in settings:
@@ -56,14 +59,14 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
                 continue
             t0 = time.perf_counter()
             cands, energies = [], []
-            for (i, x), start in zip(_padded_batches(images, batch), starts):
+            for (i, x), ranking in zip(_padded_batches(images, batch), rankings):
                 key = jax.random.fold_in(jax.random.key(seed), i)
-                out = refine(models, x, start[:, :n], key, preset=preset, method=method, R=R, settings=optimizer)
+                out = refine(models, x, ranking.first(n), key, preset=preset, method=method, R=R, settings=optimizer)
                 cands.append(np.asarray(out.candidates))
                 energies.append(np.asarray(out.energies))
             predictions[slot] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
             seconds[slot] = time.perf_counter() - t0
-    return np.concatenate(starts)[:e], predictions, seconds
+    return np.concatenate([np.asarray(r.motions) for r in rankings])[:e], predictions, seconds
 
 
 def prediction_key(method: str, n: int, R: int) -> tuple:

@@ -7,11 +7,13 @@ batch shape). For every method it
 2. scores the whole bank of training motions in chunks of ``chunk`` (memory stays bounded
    for any bank size) and keeps the ``n`` lowest-energy motions;
 3. optimises those n candidates with the chosen method (:data:`METHODS`);
-4. re-scores the originals and every optimised candidate with the EBM and returns them
-   ranked (lowest energy first), so execution can fall back to the next candidate.
+4. scores every optimised candidate with the EBM (reusing its F; the starts keep their step-2
+   energies) and returns them and the starts ranked (lowest energy first), so execution can
+   fall back to the next candidate.
 
 :func:`top_candidates` (step 2) and :func:`refine` (steps 3-4) are the two halves, for
-comparing several methods from one scoring of the bank.
+comparing several methods from one scoring of the bank; the :class:`Ranking` passed between them
+carries F and the starts' energies, so neither is computed twice.
 
 Methods (all start from the same top-n; settings of method.md):
 
@@ -70,6 +72,22 @@ class Models(NamedTuple):
     ebm: Any
     dmo: Any = None
     vae: Any = None
+
+
+class Ranking(NamedTuple):
+    """What :func:`top_candidates` hands to :func:`refine`: per image, the ``n`` lowest-energy bank
+    ``motions [..., n, 101, 11]`` (best first), their ``energies [..., n]`` and the EBM's
+    ``feature`` F ``[..., H, W, C]``, so that refining neither re-encodes the image nor re-scores
+    the starts. ``feature`` may be None (F is then recomputed): a caller that keeps many rankings
+    can drop it to save memory (256² paper preset: 64 MB per image)."""
+
+    motions: jax.Array
+    energies: jax.Array
+    feature: jax.Array | None = None
+
+    def first(self, n: int) -> "Ranking":
+        """The best ``n`` of each image's motions (the same F)."""
+        return Ranking(self.motions[..., :n, :, :], self.energies[..., :n], self.feature)
 
 
 class Prediction(NamedTuple):
@@ -231,35 +249,38 @@ def _masked(delta):
 
 
 # --------------------------------------------------------------------------- one image
-def _top_n(preset: Preset, n: int, chunk: int, models: Models, image, bank):
-    """The ``n`` lowest-energy motions of ``bank`` for one image, ``[n, 101, 11]`` (best first)."""
+def _top_n(preset: Preset, n: int, chunk: int, models: Models, image, bank) -> Ranking:
+    """The ``n`` lowest-energy motions of ``bank`` for one image (best first), with F."""
     ebm = EBMNet(preset)
-    bank_energy = chunked_energy(ebm, models.ebm, ebm.encode(models.ebm, image), bank, chunk)
-    _, top = jax.lax.top_k(-bank_energy, n)
-    return bank[top]
+    feature = ebm.encode(models.ebm, image)
+    bank_energy = chunked_energy(ebm, models.ebm, feature, bank, chunk)
+    neg_energy, top = jax.lax.top_k(-bank_energy, n)
+    return Ranking(bank[top], -neg_energy, feature)
 
 
 def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: OptimizerSettings, models: Models,
-                image, start, key) -> Prediction:
-    """Optimise one image's starting motions ``start [n, 101, 11]`` with ``method`` and rank the
-    starts and the results by energy."""
+                image, ranking: Ranking, key) -> Prediction:
+    """Optimise one image's starting motions ``ranking.motions [n, 101, 11]`` with ``method`` and
+    rank the starts and the results by energy (a ranking's missing F or energies are computed)."""
     ebm = EBMNet(preset)
-    f_ebm = ebm.encode(models.ebm, image)
+    start = ranking.motions
+    f_ebm = ebm.encode(models.ebm, image) if ranking.feature is None else ranking.feature
     energy = lambda m: ebm.energy(models.ebm, f_ebm, m)
+    start_energy = energy(start) if ranking.energies is None else ranking.energies
     n = start.shape[0]
 
     if method == "sort":
-        cands = start
+        new = start[:0]
     elif method == "dmo":
         dmo = DMONet(preset)
         f_dmo = dmo.encode(models.dmo, image)
         refined = dmo_unroll(dmo, models.dmo, f_dmo, start, R) if R > 0 else jnp.zeros((0,) + start.shape)
-        cands = jnp.concatenate([start[None], refined]).reshape((-1,) + start.shape[1:])
+        new = refined.reshape((-1,) + start.shape[1:])
     elif method in ("langevin", "gd"):
         # time is never changed: its gradient is masked out before each update
         masked_energy = lambda x: energy(start + _masked(x - start))
         x = langevin(masked_energy, start, key, settings.langevin_step, settings.langevin_iters, method == "langevin")
-        cands = jnp.concatenate([start, project_motions(start + _masked(x - start))])
+        new = project_motions(start + _masked(x - start))
     elif method in ("vaebm-l", "vaebm-s"):
         vae = VAENet(preset.vae)
         z0, _ = vae.encode(models.vae, start)
@@ -268,7 +289,7 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
         step = settings.vaebm_l_step if method == "vaebm-l" else settings.vaebm_s_step
         z = langevin(lambda z: energy(decode(z)) + 0.5 * jnp.sum(z**2, axis=-1), z0, key, step,
                       settings.vaebm_iters, True)
-        cands = jnp.concatenate([start, project_motions(decode(z))])
+        new = project_motions(decode(z))
     elif method == "dfo":
         x, sigma = start, settings.dfo_noise
         for k in jax.random.split(key, settings.dfo_iters):
@@ -276,11 +297,14 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
             pick = jax.random.categorical(k_pick, -energy(x), shape=(n,))
             x = project_motions(x[pick] + _masked(sigma * jax.random.normal(k_noise, x.shape)))
             sigma *= settings.dfo_shrink
-        cands = jnp.concatenate([start, x])
+        new = x
     else:  # check_request rejects unknown names; this guards future additions
         raise ValueError(f"unhandled method {method!r}")
 
-    energies = chunked_energy(ebm, models.ebm, f_ebm, cands, chunk)
+    # the starts keep their bank-scoring energies: only the optimised motions are scored here
+    cands = jnp.concatenate([start, new])
+    energies = jnp.concatenate([start_energy, chunked_energy(ebm, models.ebm, f_ebm, new, chunk)]) if new.shape[0] \
+        else start_energy
     order = jnp.argsort(energies)
     cands, energies = cands[order], energies[order]
     return Prediction(cands[0], cands, energies)
@@ -296,17 +320,17 @@ def _top_candidates_jit(models, image, bank, *, preset, n, chunk):
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "R", "chunk", "settings"))
-def _refine_jit(models, image, start, key, *, preset, method, R, chunk, settings):
+def _refine_jit(models, image, ranking, key, *, preset, method, R, chunk, settings):
     one = functools.partial(_refine_one, preset, method, R, chunk, settings, models)
     if image.ndim == 3:
-        return one(image, start, key)
-    return jax.vmap(one)(image, start, jax.random.split(key, image.shape[0]))
+        return one(image, ranking, key)
+    return jax.vmap(one)(image, ranking, jax.random.split(key, image.shape[0]))
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings"))
 def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings):
-    start = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
-    return _refine_jit(models, image, start, key, preset=preset, method=method, R=R, chunk=chunk, settings=settings)
+    ranking = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
+    return _refine_jit(models, image, ranking, key, preset=preset, method=method, R=R, chunk=chunk, settings=settings)
 
 
 def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
@@ -346,9 +370,10 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
-                   chunk: int | None = None) -> jax.Array:
-    """Step 2 of :func:`predict` alone: the ``n`` lowest-energy bank motions per image,
-    ``[n, 101, 11]`` (or ``[B, n, 101, 11]`` for a batch of images), best first.
+                   chunk: int | None = None) -> Ranking:
+    """Step 2 of :func:`predict` alone: a :class:`Ranking` of the ``n`` lowest-energy bank motions
+    per image (``motions [n, 101, 11]``, or ``[B, n, 101, 11]`` for a batch of images, best
+    first), with their energies and the EBM's F.
 
     With :func:`refine` it splits :func:`predict` in two, so that several methods can start
     from one scoring of the bank (the costly part: N EBM evaluations per image).
@@ -359,23 +384,28 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     return _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
 
 
-def refine(models: Models, image: jax.Array, start: jax.Array, key: jax.Array, *, preset: Preset,
+def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: jax.Array, *, preset: Preset,
            method: str = "dmo", R: int = 1, chunk: int | None = None,
            settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
-    """Steps 3-4 of :func:`predict`: optimise the starting motions ``start`` (``[n, 101, 11]`` for
-    an image ``[S, S, 4]``, ``[B, n, 101, 11]`` for images ``[B, S, S, 4]``; usually
-    :func:`top_candidates`' output) with ``method`` and rank them with the results by energy.
+    """Steps 3-4 of :func:`predict`: optimise the starting motions with ``method`` and rank them
+    with the results by energy. ``start`` is :func:`top_candidates`' :class:`Ranking` (its F and
+    energies are reused) or bare motions, ``[n, 101, 11]`` for an image ``[S, S, 4]`` and
+    ``[B, n, 101, 11]`` for images ``[B, S, S, 4]`` (F and their energies are then computed).
     Arguments, result and errors as :func:`predict`."""
-    start, image = (x if hasattr(x, "dtype") else np.asarray(x) for x in (start, image))
-    shape, image_shape = tuple(jnp.shape(start)), tuple(jnp.shape(image))
+    ranking = start if isinstance(start, Ranking) else Ranking(start, None)
+    motions, image = (x if hasattr(x, "dtype") else np.asarray(x) for x in (ranking.motions, image))
+    shape, image_shape = tuple(jnp.shape(motions)), tuple(jnp.shape(image))
     if (len(shape) not in (3, 4) or len(shape) != len(image_shape) or shape[-2:] != (NUM_STEPS, POSE_DIM)
             or shape[-3] < 1 or (len(shape) == 4 and shape[0] != image_shape[0])):
         raise ValueError(f"start must be [n, {NUM_STEPS}, {POSE_DIM}] for one image or [B, n, {NUM_STEPS}, "
                          f"{POSE_DIM}] for images [B, S, S, 4], got start {shape} for image {image_shape}")
-    flat = start.reshape((-1,) + shape[-2:])
+    if ranking.energies is not None and tuple(jnp.shape(ranking.energies)) != shape[:-2]:
+        raise ValueError(f"start.energies must be {list(shape[:-2])}, one per motion, got "
+                         f"{list(jnp.shape(ranking.energies))}")
+    flat = motions.reshape((-1,) + shape[-2:])
     preset, image, _, key, chunk = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk,
                                                  "start")
-    return _refine_jit(models, image, start, key, preset=preset, method=method,
+    return _refine_jit(models, image, ranking._replace(motions=motions), key, preset=preset, method=method,
                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
 
 

@@ -52,18 +52,30 @@ def test_predict_is_jittable_and_vmaps_over_images(models, bank):
 def test_top_candidates_then_refine_equals_predict(models, bank, method, R):
     images, key = _images(2), jax.random.key(5)
     whole = predict(models, images, bank, key, preset=TINY, method=method, n=3, R=R)
-    start = inference.top_candidates(models, images, bank, preset=TINY, n=3)
-    assert start.shape == (2, 3, 101, 11)
+    ranking = inference.top_candidates(models, images, bank, preset=TINY, n=3)
+    assert ranking.motions.shape == (2, 3, 101, 11) and ranking.energies.shape == (2, 3)
+    ebm = EBMNet(TINY)
+    np.testing.assert_allclose(ranking.feature, jax.vmap(lambda x: ebm.encode(models.ebm, x))(images), atol=1e-6)
     sort = predict(models, images, bank, key, preset=TINY, method="sort", n=3)
-    np.testing.assert_array_equal(start, sort.candidates)  # the bank's top 3, best first
-    split = inference.refine(models, images, start, key, preset=TINY, method=method, R=R)
+    np.testing.assert_array_equal(ranking.motions, sort.candidates)  # the bank's top 3, best first
+    np.testing.assert_array_equal(ranking.energies, sort.energies)
+    split = inference.refine(models, images, ranking, key, preset=TINY, method=method, R=R)
     np.testing.assert_allclose(split.candidates, whole.candidates, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(split.energies, whole.energies, rtol=1e-5, atol=1e-5)
+    # bare starting motions, or a ranking without F: F and the starts' energies are recomputed
+    for start in (ranking.motions, ranking._replace(feature=None)):
+        again = inference.refine(models, images, start, key, preset=TINY, method=method, R=R)
+        np.testing.assert_allclose(again.candidates, whole.candidates, rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(again.energies, whole.energies, rtol=1e-5, atol=1e-5)
 
 
 def test_refine_rejects_starts_that_do_not_fit_the_images(models, bank):
     images = _images(2)
-    start = inference.top_candidates(models, images, bank, preset=TINY, n=3)
+    ranking = inference.top_candidates(models, images, bank, preset=TINY, n=3)
+    start = ranking.motions
+    with pytest.raises(ValueError, match=r"start.energies must be \[2, 3\], one per motion, got \[2, 2\]"):
+        inference.refine(models, images, ranking._replace(energies=ranking.energies[:, :2]), jax.random.key(0),
+                         preset=TINY)
     with pytest.raises(ValueError, match=r"start must be \[n, 101, 11\] for one image or \[B, n, 101, 11\]"):
         inference.refine(models, images, start[0], jax.random.key(0), preset=TINY)
     with pytest.raises(ValueError, match=r"got start \(1, 3, 101, 11\) for image \(2, 32, 32, 4\)"):

@@ -37,9 +37,9 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES)
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig), e.g. "
-                        "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
-                        "same --workdir")
+                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or the pose "
+                        "MLP's depth input (pose_z_offset, pose_z_scale), e.g. --set dmo_steps=2400; repeatable. "
+                        "A run of more steps continues a finished one in the same --workdir")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
@@ -55,7 +55,7 @@ def train_all_main(argv: list[str] | None = None) -> None:
     non_negative("--seed", args.seed)
     enable_compilation_cache()
     try:
-        preset = get_preset(args.preset, args.variant).with_train_overrides(args.set)
+        preset = get_preset(args.preset, args.variant).with_overrides(args.set)
     except ValueError as err:
         _fail(str(err))
     names = task_names(args.tasks)
@@ -134,6 +134,9 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dmo-train-steps", type=int,
                         help="use the DMO trained with this many unrolled steps (Ours-5: 5, Ours-1: 1; "
                         "default the preset's)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="the networks' pose-depth input if they were trained with one, e.g. --set "
+                        "pose_z_scale=10 (as given to bin/train_all; checkpoints refuse other values)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
@@ -181,7 +184,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     from envs.platform import enable_compilation_cache
 
     enable_compilation_cache()
-    preset = get_preset(args.preset, args.variant)
+    try:
+        preset = get_preset(args.preset, args.variant).with_overrides(args.set)
+    except ValueError as err:
+        _fail(str(err))
     data = args.data or default_data_dir(preset.image_size)
     settings = [(args.n, args.R)]
     if sweep:
@@ -222,7 +228,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             "settings": {"method": method, "preset": preset.name, "variant": preset.variant,
                          "negatives": args.negatives, "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
-                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep},
+                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set},
             "results": results})
 
 

@@ -52,6 +52,11 @@ class HeadConfig:
     dropout: float = 0.1  # pose MLP dropout
     pre_layernorm: bool = False  # paper-faithful block has no LayerNorm
     vit_tokens_per_side: int = 16  # ViT variant: F cut into 16 x 16 patches (l = 256)
+    # The pose MLP reads depth as (z - pose_z_offset) * pose_z_scale (the paper's: z in metres,
+    # 0 and 1). A task's depths spread by ~0.1 m against ~0.3 for uv, and Adam moves a weight by
+    # at most ~lr per step, so a short run cannot learn a 10x larger weight on z by itself.
+    pose_z_offset: float = 0.0
+    pose_z_scale: float = 1.0
 
     def __post_init__(self):
         check_variant(self.variant)
@@ -145,25 +150,35 @@ class Preset:
     def with_compute_dtype(self, dtype: str) -> "Preset":
         return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
 
-    def with_train_overrides(self, overrides: list[str]) -> "Preset":
-        """This preset with training settings replaced, each given as ``"field=value"`` with a
-        field of :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``); raises ``ValueError``
-        naming the bad item and the valid fields."""
+    def with_overrides(self, overrides: list[str]) -> "Preset":
+        """This preset with settings replaced, each given as ``"field=value"`` with a field of
+        :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (the
+        pose MLP's depth input); raises ``ValueError`` naming the bad item and the valid fields."""
         fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
-        changes = {}
+        changes, head = {}, {}
         for item in overrides:
             name, sep, text = item.partition("=")
-            if not sep or name not in fields:
-                raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
-            kind = type(getattr(self.train, name))
+            if not sep or (name not in fields and name not in HEAD_OVERRIDES):
+                raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of "
+                                 f"{', '.join([*fields, *HEAD_OVERRIDES])}")
+            kind = type(getattr(self.head if name in HEAD_OVERRIDES else self.train, name))
             try:
                 value = kind(text)
             except ValueError:
                 raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
+            if name in HEAD_OVERRIDES:
+                head[name] = value
+                continue
             if kind is not str and value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
                 raise ValueError(f"--set {item!r}: {name} must be {'>= 0' if value < 0 else 'positive'}")
             changes[name] = value
-        return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes))
+        return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes),
+                                   head=dataclasses.replace(self.head, **head))
+
+
+#: Head settings ``--set`` may change: they change what the networks compute, not their shapes,
+#: so checkpoints record them (``training``) and refuse to load under other values.
+HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale")
 
 
 PAPER = Preset(name="paper", image_size=256)

@@ -172,6 +172,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
 
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
+                                     **_pose_meta(preset),
                                      "negatives": negatives}, cfg)
 
 
@@ -200,6 +201,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
 
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
                      cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
+                                     **_pose_meta(preset),
                                      "train_iters": r}, cfg)
 
 
@@ -229,8 +231,18 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
     )
 
 
+def _pose_meta(preset: Preset) -> dict:
+    """The head settings that change what a checkpoint computes without changing its shapes."""
+    return {"pose_z": [preset.head.pose_z_offset, preset.head.pose_z_scale]}
+
+
+#: Meta of checkpoints written before a field existed: the value they were made with.
+_META_BEFORE = {"pose_z": [0.0, 1.0]}
+
+
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
-    diff = {k: (saved.get(k), v) for k, v in expected.items() if saved.get(k) != v}
+    diff = {k: (saved.get(k, _META_BEFORE.get(k)), v) for k, v in expected.items()
+            if saved.get(k, _META_BEFORE.get(k)) != v}
     if diff:
         detail = ", ".join(f"{k}: checkpoint has {a!r}, expected {b!r}" for k, (a, b) in diff.items())
         raise TrainingError(f"checkpoint at {path} was made with other settings ({detail}); "

@@ -140,7 +140,7 @@ def test_offset_dmo_inputs_carry_the_vae_perturbation_without_its_reconstruction
     clean = losses.dmo_inputs(vae, vae_params, motions, key, dataclasses.replace(at_mean, dmo_inputs="offset"))
     np.testing.assert_allclose(clean, motions, atol=1e-5)
     with pytest.raises(ValueError, match="dmo_inputs='noisy': expected one of decoded, offset"):
-        TINY.with_train_overrides(["dmo_inputs=noisy"])
+        TINY.with_overrides(["dmo_inputs=noisy"])
 
 
 def test_resumed_run_ends_with_the_same_parameters(task_data, tmp_path):
@@ -184,6 +184,14 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
         training.fit(training.vae_spec(_fast(TINY, 2)), task_data[0], tmp_path, seed=1, verbose=False)
     with pytest.raises(training.TrainingError, match="at step 2, beyond the 1 steps"):
         training.fit(training.vae_spec(_fast(TINY, 1)), task_data[0], tmp_path, verbose=False)
+
+
+def test_checkpoint_refuses_another_pose_depth_input(task_data, vae_params, tmp_path):
+    # the scaling changes what the network computes but no parameter shape
+    training.fit(training.ebm_spec(_fast(TINY, 1)), task_data[0], tmp_path, extra=vae_params, verbose=False)
+    scaled = _fast(TINY, 1).with_overrides(["pose_z_scale=10"])
+    with pytest.raises(training.TrainingError, match=r"pose_z: checkpoint has \[0.0, 1.0\], expected \[0.0, 10.0\]"):
+        training.load_params(tmp_path, training.ebm_spec(scaled))
 
 
 def test_more_steps_continue_a_finished_run(task_data, tmp_path):

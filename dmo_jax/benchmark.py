@@ -433,15 +433,27 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
             rows.append({"method": "dmo", "n": n, "R": 1, "reuse": False, "stage": "predict",
                          **timed(lambda: plain(models, image, bank)),
                          "peak_mb": _mb(_peak_bytes(plain, models, image, bank))})
+    for method in methods:
+        run = lambda m=method: predict(models, image, bank, key, preset=p, method=m, n=method_n, R=1).motion
+        rows.append({"method": method, "n": method_n, "R": 1 if method == "dmo" else None, "reuse": True,
+                     "stage": "predict", **timed(run)})
+    # The optimisers alone, timed round-robin (one call of each per round) so that a change in the
+    # machine's load shifts every method alike and their ratios stay comparable.
     start = top_candidates(models, image, bank, preset=p, n=method_n)
-    for stage in ("predict", "refine"):
-        for method in methods:
-            if stage == "predict":
-                run = lambda m=method: predict(models, image, bank, key, preset=p, method=m, n=method_n, R=1).motion
-            else:
-                run = lambda m=method: refine(models, image, start, key, preset=p, method=m, R=1).motion
-            rows.append({"method": method, "n": method_n, "R": 1 if method == "dmo" else None, "reuse": True,
-                         "stage": stage, **timed(run)})
+    runs = {m: (lambda m=m: refine(models, image, start, key, preset=p, method=m, R=1).motion) for m in methods}
+    first = {}
+    for method, run in runs.items():
+        t0 = time.perf_counter()
+        jax.block_until_ready(run())
+        first[method] = round(time.perf_counter() - t0, 2)
+    times = {m: [] for m in methods}
+    for _ in range(repeats):
+        for method, run in runs.items():
+            times[method] += time_call(run, repeats=1, warmup=0)
+    for method in methods:
+        rows.append({"method": method, "n": method_n, "R": 1 if method == "dmo" else None, "reuse": True,
+                     "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
+                     "first_call_s": first[method]})
     return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows,
             "cpu": _cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
 

@@ -170,17 +170,29 @@ def _shape_table(tree) -> dict[str, tuple]:
     return {jax.tree_util.keystr(path): tuple(getattr(leaf, "shape", np.shape(leaf))) for path, leaf in leaves}
 
 
+def _signature(tree) -> tuple:
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return treedef, tuple(tuple(getattr(leaf, "shape", np.shape(leaf))) for leaf in leaves)
+
+
 @functools.lru_cache(maxsize=None)
-def _expected_shapes(preset: Preset, which: str) -> dict[str, tuple]:
+def _expected_params(preset: Preset, which: str):
     if which == "vae":
-        return _shape_table(VAENet(preset.vae).param_shapes())
-    return _shape_table((EBMNet if which == "ebm" else DMONet)(preset).param_shapes())
+        return VAENet(preset.vae).param_shapes()
+    return (EBMNet if which == "ebm" else DMONet)(preset).param_shapes()
+
+
+@functools.lru_cache(maxsize=None)
+def _expected_signature(preset: Preset, which: str) -> tuple:
+    return _signature(_expected_params(preset, which))
 
 
 def check_params(params, preset: Preset, which: str) -> None:
     """Raise ``ValueError`` unless ``params`` (``Models.<which>``) have the parameter names and
     shapes of ``preset``'s network, e.g. a checkpoint of another preset or variant."""
-    got, want = _shape_table(params), _expected_shapes(preset, which)
+    if _signature(params) == _expected_signature(preset, which):  # the fast path of every call
+        return
+    got, want = _shape_table(params), _shape_table(_expected_params(preset, which))
     if got == want:
         return
     wrong = [k for k in want if k in got and got[k] != want[k]]

@@ -65,5 +65,8 @@ def enable_compilation_cache() -> str | None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    # 0: also keep the few hundred small programs that run op by op (Flax's initialisers, the
+    # optimiser's state): about 25 s of every new process's compilation for the cpu preset's
+    # three networks, 7 s when read back (3 MB; BENCHMARKS.md)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return path

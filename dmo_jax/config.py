@@ -57,9 +57,15 @@ class HeadConfig:
     # at most ~lr per step, so a short run cannot learn a 10x larger weight on z by itself.
     pose_z_offset: float = 0.0
     pose_z_scale: float = 1.0
+    # Not in the paper (False = off; concat variant only): F carries the network image's depth
+    # as one extra channel, and the feature-mix MLP also reads, per pose, the image's depth at
+    # the pose's pixel minus the pose's depth, in decimetres.
+    depth_cue: bool = False
 
     def __post_init__(self):
         check_variant(self.variant)
+        if self.depth_cue and self.variant != "concat":
+            raise ValueError(f"HeadConfig: depth_cue needs the concat variant, not {self.variant!r}")
         if self.width % self.num_heads:
             raise ValueError("HeadConfig: width must be divisible by num_heads")
 
@@ -132,7 +138,7 @@ class Preset:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self):
-        if self.encoder.out_dim != self.head.width:
+        if self.encoder.out_dim != self.head.width:  # (+1 channel of depth with head.depth_cue)
             raise ValueError("Preset: encoder.out_dim must equal head.width (F channels are tokens)")
         factor = 4 * 2 ** (len(self.encoder.dims) - 1)
         if self.image_size % factor:
@@ -152,8 +158,8 @@ class Preset:
 
     def with_overrides(self, overrides: list[str]) -> "Preset":
         """This preset with settings replaced, each given as ``"field=value"`` with a field of
-        :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (the
-        pose MLP's depth input); raises ``ValueError`` naming the bad item and the valid fields."""
+        :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (how
+        the head reads depth); raises ``ValueError`` naming the bad item and the valid fields."""
         fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
         changes, head = {}, {}
         for item in overrides:
@@ -163,13 +169,15 @@ class Preset:
                                  f"{', '.join([*fields, *HEAD_OVERRIDES])}")
             kind = type(getattr(self.head if name in HEAD_OVERRIDES else self.train, name))
             try:
-                value = kind(text)
+                if kind is bool and text.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError
+                value = text.lower() in ("true", "1") if kind is bool else kind(text)
             except ValueError:
                 raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
             if name in HEAD_OVERRIDES:
                 head[name] = value
                 continue
-            if kind is not str and value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
+            if kind not in (str, bool) and value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
                 raise ValueError(f"--set {item!r}: {name} must be {'>= 0' if value < 0 else 'positive'}")
             changes[name] = value
         return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes),
@@ -178,7 +186,7 @@ class Preset:
 
 #: Head settings ``--set`` may change: they change what the networks compute, not their shapes,
 #: so checkpoints record them (``training``) and refuse to load under other values.
-HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale")
+HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale", "depth_cue")
 
 
 PAPER = Preset(name="paper", image_size=256)

@@ -35,6 +35,7 @@ import numpy as np
 
 from .config import HeadConfig, Preset, get_preset
 from .encoder import ConvNeXtUNet, PatchConv, gelu
+from .data import DEPTH_FAR, DEPTH_NEAR
 from .motion import NUM_STEPS, POSE_DIM, POSE_KEYS
 
 Params = Any
@@ -169,7 +170,11 @@ class MotionTrunk(nn.Module):
         g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(poses, deterministic)
         if cfg.variant == "concat":
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
-            tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate([f, g], -1))
+            mix_in = [f, g]
+            if cfg.depth_cue:  # F's last channel is the image's depth (see EBM.encode)
+                f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
+                mix_in = [f, g, (image_depth - motions[..., POSE_KEYS["z"]]) * 10.0]
+            tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate(mix_in, -1))
             image_tokens = 0
         elif cfg.variant == "wo_concat":
             tokens = jnp.concatenate([bilinear_sample(feature, motions[..., POSE_KEYS["uv"]]), g], axis=-2)
@@ -197,11 +202,19 @@ def _flatten_motions(motions):
     return motions.reshape((-1, NUM_STEPS, POSE_DIM)), motions.shape[:-2]
 
 
-def _check_feature(feature, width):
+def _check_feature(feature, head: HeadConfig):
+    width = head.width + head.depth_cue
     if feature.ndim != 3 or feature.shape[-1] != width:
         raise ValueError(
             f"feature must be one image's F [H, W, {width}] (vmap over images), got {feature.shape}"
         )
+
+
+def _encode(encoder, head: HeadConfig, image, deterministic: bool):
+    feature = encoder(image, deterministic)
+    if head.depth_cue:  # the network image's depth channel, read again by the head at each pose
+        feature = jnp.concatenate([feature, image[..., 3:4].astype(feature.dtype)], axis=-1)
+    return feature
 
 
 class EBM(nn.Module):
@@ -216,12 +229,12 @@ class EBM(nn.Module):
         self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
 
     def encode(self, image, deterministic: bool = True):
-        """``image [..., H, W, 4] -> F [..., H, W, w]``."""
-        return self.encoder(image, deterministic)
+        """``image [..., H, W, 4] -> F [..., H, W, w]`` (``w + 1`` channels with ``depth_cue``)."""
+        return _encode(self.encoder, self.preset.head, image, deterministic)
 
     def energy(self, feature, motions, deterministic: bool = True):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]``."""
-        _check_feature(feature, self.preset.head.width)
+        _check_feature(feature, self.preset.head)
         flat, lead = _flatten_motions(motions)
         tokens, _ = self.trunk(feature, flat, deterministic)
         return self.energy_mlp(jnp.mean(tokens, axis=-2))[..., 0].reshape(lead)
@@ -264,12 +277,12 @@ class DMO(nn.Module):
         self.head = DMOHead(self.preset.head.width)
 
     def encode(self, image, deterministic: bool = True):
-        """``image [..., H, W, 4] -> F [..., H, W, w]``."""
-        return self.encoder(image, deterministic)
+        """``image [..., H, W, 4] -> F [..., H, W, w]`` (``w + 1`` channels with ``depth_cue``)."""
+        return _encode(self.encoder, self.preset.head, image, deterministic)
 
     def refine(self, feature, motions, deterministic: bool = True):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> refined motions, same shape."""
-        _check_feature(feature, self.preset.head.width)
+        _check_feature(feature, self.preset.head)
         flat, lead = _flatten_motions(motions)
         _, pose_tokens = self.trunk(feature, flat, deterministic)
         return self.head(pose_tokens, flat).reshape(motions.shape)

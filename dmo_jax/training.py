@@ -172,7 +172,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
 
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
-                                     **_pose_meta(preset),
+                                     **_head_meta(preset),
                                      "negatives": negatives}, cfg)
 
 
@@ -201,7 +201,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
 
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
                      cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
-                                     **_pose_meta(preset),
+                                     **_head_meta(preset),
                                      "train_iters": r}, cfg)
 
 
@@ -231,13 +231,14 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
     )
 
 
-def _pose_meta(preset: Preset) -> dict:
-    """The head settings that change what a checkpoint computes without changing its shapes."""
-    return {"pose_z": [preset.head.pose_z_offset, preset.head.pose_z_scale]}
+def _head_meta(preset: Preset) -> dict:
+    """How the head reads depth (``config.HEAD_OVERRIDES``): the scaling changes what a
+    checkpoint computes without changing its shapes."""
+    return {"pose_z": [preset.head.pose_z_offset, preset.head.pose_z_scale], "depth_cue": preset.head.depth_cue}
 
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
-_META_BEFORE = {"pose_z": [0.0, 1.0]}
+_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False}
 
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:

@@ -224,6 +224,27 @@ def test_train_overrides_replace_only_the_named_settings():
     assert (scaled.head.pose_z_offset, scaled.head.pose_z_scale, scaled.train) == (1.45, 10.0, cpu.train)
 
 
+def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():
+    tiny = get_preset("tiny")
+    cue = tiny.with_overrides(["depth_cue=true"])
+    ebm = EBMNet(cue)
+    params = ebm.init(jax.random.key(0))
+    image = jax.random.uniform(jax.random.key(1), (32, 32, 4))
+    feature = ebm.encode(params, image)
+    assert feature.shape == (32, 32, tiny.head.width + 1)
+    np.testing.assert_array_equal(feature[..., -1], image[..., 3])
+    mix = params["params"]["trunk"]["mix_mlp"]["Dense_0"]["kernel"]
+    plain = EBMNet(tiny).param_shapes()["params"]["trunk"]["mix_mlp"]["Dense_0"]["kernel"]
+    assert mix.shape[0] == plain.shape[0] + 1  # one more input: image depth minus pose depth
+    assert ebm.energy(params, feature, jnp.full((2, 101, 11), 0.5)).shape == (2,)
+    with pytest.raises(ValueError, match=r"feature must be one image's F \[H, W, 17\]"):
+        ebm.energy(params, feature[..., :-1], jnp.full((2, 101, 11), 0.5))
+    with pytest.raises(ValueError, match="depth_cue needs the concat variant, not 'gap'"):
+        get_preset("tiny", "gap").with_overrides(["depth_cue=true"])
+    with pytest.raises(ValueError, match="depth_cue takes a bool, got 'yes'"):
+        tiny.with_overrides(["depth_cue=yes"])
+
+
 def test_pose_depth_input_scaling_is_the_same_network_on_rescaled_depths():
     tiny = get_preset("tiny")
     scaled = tiny.with_overrides(["pose_z_offset=1.4", "pose_z_scale=10"])

@@ -61,7 +61,7 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     if negatives not in NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {NEGATIVE_MODES}")
     b = motions.shape[0]
-    k_gt, k_vae, k_perm, k_depth = jax.random.split(key, 4)
+    k_gt, k_vae, k_perm = jax.random.split(key, 3)
     n_gt = cfg.ebm_gt_negatives if negatives == "in-data+vae" else 0
     n_vae = cfg.ebm_vae_negatives + (cfg.ebm_gt_negatives - n_gt)
     parts = [motions[:, None]]
@@ -74,6 +74,8 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     flat = samples.reshape((b * n_vae,) + motions.shape[1:])
     parts.append(jax.random.permutation(k_perm, flat).reshape((b, n_vae) + motions.shape[1:]))
     if cfg.ebm_depth_negatives:
+        # a key of their own: the paper's negatives keep the keys they had before this option
+        k_depth = jax.random.fold_in(key, 3)
         parts.append(depth_negatives(motions, k_depth, cfg.ebm_depth_negatives, cfg.depth_negative_shift))
     return jax.lax.stop_gradient(jnp.concatenate(parts, axis=1))
 

@@ -119,9 +119,9 @@ def test_depth_negatives_differ_from_the_positive_in_depth_alone(task_data, vae_
     end = np.abs(drift[..., -1])
     assert end.min() >= 0.02 - 1e-5 and end.max() <= 0.08 + 1e-5
     assert (drift[..., -1] > 0).any() and (drift[..., -1] < 0).any()  # nearer and further both occur
-    # the default, the paper's recipe, has none
-    assert losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0),
-                                 TINY.train).shape[1] == 1 + 3 + 4
+    # the default, the paper's recipe, has none, and its negatives do not change with the option
+    paper = losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0), TINY.train)
+    np.testing.assert_array_equal(paper, cands[:, :1 + 3 + 4])
 
 
 def test_offset_dmo_inputs_carry_the_vae_perturbation_without_its_reconstruction_error(task_data, vae_params):

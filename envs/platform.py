@@ -53,7 +53,7 @@ def enable_compilation_cache() -> str | None:
     """Keep XLA's compiled programs on disk so later runs skip compilation.
 
     Compiling the cpu preset's three training steps and their evaluations takes about
-    5.5 minutes on 2 cores (BENCHMARKS.md); every task after the first, and every resumed run, reuses them
+    1.5 minutes on 2 cores (BENCHMARKS.md); every task after the first, and every resumed run, reuses them
     (the cache key covers the program, the XLA flags and the JAX version). The directory
     is ``$DMO_JAX_COMPILATION_CACHE`` (``off`` disables it), by default
     ``~/.cache/dmo_jax/xla``. Returns the directory in use, or None.

@@ -184,8 +184,9 @@ class Preset:
                                    head=dataclasses.replace(self.head, **head))
 
 
-#: Head settings ``--set`` may change: they change what the networks compute, not their shapes,
-#: so checkpoints record them (``training``) and refuse to load under other values.
+#: Head settings ``--set`` may change. They change what the networks compute (the rescaling
+#: without changing any parameter's shape), so checkpoints record them (``training``) and refuse
+#: to load under other values.
 HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale", "depth_cue")
 
 

@@ -9,6 +9,8 @@ Head of variant ``concat`` (the paper's model), per motion:
 * pose MLP on each pose p_t: 11 -> w -> 2w -> 2w -> w (GELU + dropout between) -> g_t;
 * spatially-aligned temporal encoding: f_t = bilinear sample of F at uv_t
   (:func:`bilinear_sample`); c_t = [f_t, g_t] -> MLP 2w -> 2w -> 2w -> w (GELU after each);
+  (option ``depth_cue``, not in the paper: F carries the image's depth as a last channel and
+  the MLP also reads, per pose, the image's depth at uv_t minus the pose's depth, in dm);
 * Transformer over the 101 tokens (:class:`TransformerBlock`, paper-faithful by default);
 * EBM: mean over tokens -> MLP w -> w -> w -> w/2 -> w/2 -> 1 = energy (lower is better);
 * DMO: per token w -> w -> w -> w/2 -> w/2 (GELU), then one head per key
@@ -34,8 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .config import HeadConfig, Preset, get_preset
-from .encoder import ConvNeXtUNet, PatchConv, gelu
 from .data import DEPTH_FAR, DEPTH_NEAR
+from .encoder import ConvNeXtUNet, PatchConv, gelu
 from .motion import NUM_STEPS, POSE_DIM, POSE_KEYS
 
 Params = Any
@@ -171,7 +173,7 @@ class MotionTrunk(nn.Module):
         if cfg.variant == "concat":
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
             mix_in = [f, g]
-            if cfg.depth_cue:  # F's last channel is the image's depth (see EBM.encode)
+            if cfg.depth_cue:  # F's last channel is the image's depth (see _encode)
                 f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
                 mix_in = [f, g, (image_depth - motions[..., POSE_KEYS["z"]]) * 10.0]
             tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate(mix_in, -1))

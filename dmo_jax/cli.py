@@ -37,9 +37,9 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES)
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or the pose "
-                        "MLP's depth input (pose_z_offset, pose_z_scale), e.g. --set dmo_steps=2400; repeatable. "
-                        "A run of more steps continues a finished one in the same --workdir")
+                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or how the "
+                        "head reads depth (pose_z_offset, pose_z_scale, depth_cue), e.g. --set dmo_steps=2400; "
+                        "repeatable. A run of more steps continues a finished one in the same --workdir")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
@@ -135,8 +135,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         help="use the DMO trained with this many unrolled steps (Ours-5: 5, Ours-1: 1; "
                         "default the preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="the networks' pose-depth input if they were trained with one, e.g. --set "
-                        "pose_z_scale=10 (as given to bin/train_all; checkpoints refuse other values)")
+                        help="how the networks' head reads depth, if they were trained with a --set of it, e.g. "
+                        "--set depth_cue=true (as given to bin/train_all; checkpoints refuse other values)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")

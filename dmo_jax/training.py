@@ -232,8 +232,8 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
 
 
 def _head_meta(preset: Preset) -> dict:
-    """How the head reads depth (``config.HEAD_OVERRIDES``): the scaling changes what a
-    checkpoint computes without changing its shapes."""
+    """How the head reads depth (``config.HEAD_OVERRIDES``). The rescaling changes what a
+    checkpoint computes without changing any parameter's shape, so only this record tells."""
     return {"pose_z": [preset.head.pose_z_offset, preset.head.pose_z_scale], "depth_cue": preset.head.depth_cue}
 
 
@@ -242,8 +242,8 @@ _META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False}
 
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
-    diff = {k: (saved.get(k, _META_BEFORE.get(k)), v) for k, v in expected.items()
-            if saved.get(k, _META_BEFORE.get(k)) != v}
+    saved = {**_META_BEFORE, **saved}
+    diff = {k: (saved.get(k), v) for k, v in expected.items() if saved.get(k) != v}
     if diff:
         detail = ", ".join(f"{k}: checkpoint has {a!r}, expected {b!r}" for k, (a, b) in diff.items())
         raise TrainingError(f"checkpoint at {path} was made with other settings ({detail}); "

@@ -61,11 +61,17 @@ class HeadConfig:
     # as one extra channel, and the feature-mix MLP also reads, per pose, the image's depth at
     # the pose's pixel minus the pose's depth, in decimetres.
     depth_cue: bool = False
+    # 0: that difference as it is. > 0 (metres): tanh(difference / depth_cue_range), so a pose
+    # far in front of what the camera sees at its pixel reads about 1 whatever lies behind it.
+    depth_cue_range: float = 0.0
 
     def __post_init__(self):
         check_variant(self.variant)
         if self.depth_cue and self.variant != "concat":
             raise ValueError(f"HeadConfig: depth_cue needs the concat variant, not {self.variant!r}")
+        if self.depth_cue_range < 0 or (self.depth_cue_range and not self.depth_cue):
+            raise ValueError(f"HeadConfig: depth_cue_range must be >= 0 and needs depth_cue=true, "
+                             f"got {self.depth_cue_range} with depth_cue={self.depth_cue}")
         if self.width % self.num_heads:
             raise ValueError("HeadConfig: width must be divisible by num_heads")
 
@@ -187,7 +193,7 @@ class Preset:
 #: Head settings ``--set`` may change. They change what the networks compute (the rescaling
 #: without changing any parameter's shape), so checkpoints record them (``training``) and refuse
 #: to load under other values.
-HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale", "depth_cue")
+HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale", "depth_cue", "depth_cue_range")
 
 
 PAPER = Preset(name="paper", image_size=256)

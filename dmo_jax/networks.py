@@ -175,7 +175,9 @@ class MotionTrunk(nn.Module):
             mix_in = [f, g]
             if cfg.depth_cue:  # F's last channel is the image's depth (see _encode)
                 f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
-                mix_in = [f, g, (image_depth - motions[..., POSE_KEYS["z"]]) * 10.0]
+                gap = image_depth - motions[..., POSE_KEYS["z"]]
+                cue = jnp.tanh(gap / cfg.depth_cue_range) if cfg.depth_cue_range else gap * 10.0
+                mix_in = [f, g, cue]
             tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate(mix_in, -1))
             image_tokens = 0
         elif cfg.variant == "wo_concat":

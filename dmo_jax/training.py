@@ -234,11 +234,13 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
 def _head_meta(preset: Preset) -> dict:
     """How the head reads depth (``config.HEAD_OVERRIDES``). The rescaling changes what a
     checkpoint computes without changing any parameter's shape, so only this record tells."""
-    return {"pose_z": [preset.head.pose_z_offset, preset.head.pose_z_scale], "depth_cue": preset.head.depth_cue}
+    head = preset.head
+    return {"pose_z": [head.pose_z_offset, head.pose_z_scale], "depth_cue": head.depth_cue,
+            "depth_cue_range": head.depth_cue_range}
 
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
-_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False}
+_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0}
 
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:

@@ -245,6 +245,23 @@ def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():
         tiny.with_overrides(["depth_cue=yes"])
 
 
+
+def test_depth_cue_range_saturates_the_gap_behind_poses_far_in_front():
+    tiny = get_preset("tiny")
+    ebm_linear = EBMNet(tiny.with_overrides(["depth_cue=true"]))
+    ebm_ranged = EBMNet(tiny.with_overrides(["depth_cue=true", "depth_cue_range=0.01"]))
+    params = ebm_linear.init(jax.random.key(0))
+    feature = ebm_linear.encode(params, jax.random.uniform(jax.random.key(1), (32, 32, 4), minval=0.4))
+    farther = feature.at[..., -1].add(0.1)  # everything the camera sees 0.25 m farther away
+    motions = jnp.full((2, 101, 11), 0.5)  # poses at 0.5 m depth, >= 0.5 m in front of any surface
+    np.testing.assert_array_equal(ebm_ranged.energy(params, feature, motions),
+                                  ebm_ranged.energy(params, farther, motions))
+    assert not np.allclose(ebm_linear.energy(params, feature, motions), ebm_linear.energy(params, farther, motions))
+    with pytest.raises(ValueError, match="depth_cue_range must be >= 0 and needs depth_cue=true"):
+        tiny.with_overrides(["depth_cue_range=0.1"])
+    with pytest.raises(ValueError, match="depth_cue_range must be >= 0"):
+        tiny.with_overrides(["depth_cue=true", "depth_cue_range=-1"])
+
 def test_pose_depth_input_scaling_is_the_same_network_on_rescaled_depths():
     tiny = get_preset("tiny")
     scaled = tiny.with_overrides(["pose_z_offset=1.4", "pose_z_scale=10"])

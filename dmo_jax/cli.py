@@ -136,7 +136,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         "default the preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="how the networks' head reads depth, if they were trained with a --set of it, e.g. "
-                        "--set depth_cue=true (as given to bin/train_all; checkpoints refuse other values)")
+                        "--set depth_cue=true --set depth_cue_range=0.1 (as given to bin/train_all; checkpoints refuse "
+                        "other values)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")

@@ -10,7 +10,8 @@ Head of variant ``concat`` (the paper's model), per motion:
 * spatially-aligned temporal encoding: f_t = bilinear sample of F at uv_t
   (:func:`bilinear_sample`); c_t = [f_t, g_t] -> MLP 2w -> 2w -> 2w -> w (GELU after each);
   (option ``depth_cue``, not in the paper: F carries the image's depth as a last channel and
-  the MLP also reads, per pose, the image's depth at uv_t minus the pose's depth, in dm);
+  the MLP also reads, per pose, the image's depth at uv_t minus the pose's depth, in dm,
+  or tanh of it over ``depth_cue_range`` metres);
 * Transformer over the 101 tokens (:class:`TransformerBlock`, paper-faithful by default);
 * EBM: mean over tokens -> MLP w -> w -> w -> w/2 -> w/2 -> 1 = energy (lower is better);
 * DMO: per token w -> w -> w -> w/2 -> w/2 (GELU), then one head per key

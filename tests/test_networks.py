@@ -245,7 +245,6 @@ def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():
         tiny.with_overrides(["depth_cue=yes"])
 
 
-
 def test_depth_cue_range_saturates_the_gap_behind_poses_far_in_front():
     tiny = get_preset("tiny")
     ebm_linear = EBMNet(tiny.with_overrides(["depth_cue=true"]))

@@ -39,8 +39,8 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or how the "
                         "head reads depth (pose_z_offset, pose_z_scale, depth_cue, depth_cue_range), e.g. "
-                        "--set dmo_steps=2400; "
-                        "repeatable. A run of more steps continues a finished one in the same --workdir")
+                        "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
+                        "same --workdir")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)

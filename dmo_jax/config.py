@@ -75,6 +75,11 @@ class HeadConfig:
         if self.width % self.num_heads:
             raise ValueError("HeadConfig: width must be divisible by num_heads")
 
+    @property
+    def feature_channels(self) -> int:
+        """Channels of F the head reads: the encoder's ``width``, + 1 (the image's depth) with ``depth_cue``."""
+        return self.width + int(self.depth_cue)
+
 
 @dataclass(frozen=True)
 class VAEConfig:

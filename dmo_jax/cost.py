@@ -57,7 +57,7 @@ def variant_cost(preset_name: str, variant: str) -> dict:
     params = net.param_shapes()
     s = preset.image_size
     image = jax.ShapeDtypeStruct((s, s, 4), jnp.float32)
-    feature = jax.ShapeDtypeStruct((s, s, preset.head.width + preset.head.depth_cue), jnp.float32)
+    feature = jax.ShapeDtypeStruct((s, s, preset.head.feature_channels), jnp.float32)
 
     def motions(n):
         return jax.ShapeDtypeStruct((n, NUM_STEPS, POSE_DIM), jnp.float32)

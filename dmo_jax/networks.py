@@ -208,7 +208,7 @@ def _flatten_motions(motions):
 
 
 def _check_feature(feature, head: HeadConfig):
-    width = head.width + head.depth_cue
+    width = head.feature_channels
     if feature.ndim != 3 or feature.shape[-1] != width:
         raise ValueError(
             f"feature must be one image's F [H, W, {width}] (vmap over images), got {feature.shape}"

@@ -261,6 +261,7 @@ def test_depth_cue_range_saturates_the_gap_behind_poses_far_in_front():
     with pytest.raises(ValueError, match="depth_cue_range must be >= 0"):
         tiny.with_overrides(["depth_cue=true", "depth_cue_range=-1"])
 
+
 def test_pose_depth_input_scaling_is_the_same_network_on_rescaled_depths():
     tiny = get_preset("tiny")
     scaled = tiny.with_overrides(["pose_z_offset=1.4", "pose_z_scale=10"])

@@ -384,7 +384,7 @@ def _peak_bytes(fn, *args) -> int | None:
 
 def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 1000), repeats: int = 10,
                       methods=("sort", "dmo", "gd", "langevin", "vaebm-l", "vaebm-s", "dfo"),
-                      method_n: int = 8, no_reuse_max_n: int = 64) -> dict:
+                      method_n: int = 8, no_reuse_max_n: int = 64, ratio_ns=(1, 8, 64)) -> dict:
     """Latency of one image's :func:`dmo_jax.inference.predict` (median of ``repeats`` runs
     after compilation), with randomly initialised networks of ``preset`` (the cost does not
     depend on the weights) and a bank of ``bank_size`` random motions:
@@ -394,7 +394,8 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
     * every method of ``methods`` at n = ``method_n`` (the baselines at the paper's 100
       iterations), as a whole ``predict()`` and as :func:`~dmo_jax.inference.refine` alone
       (steps 3-4 from the same top n): the optimiser's own cost, without the bank scoring
-      that every method shares.
+      that every method shares; and ``dmo`` against ``langevin`` alone at every n of
+      ``ratio_ns``, since the DMO's fixed cost (its encoder) weighs less as n grows.
 
     Peak memory is XLA's compiled memory analysis (arguments + outputs + temporaries).
     """
@@ -439,21 +440,23 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
                      "stage": "predict", **timed(run)})
     # The optimisers alone, timed round-robin (one call of each per round) so that a change in the
     # machine's load shifts every method alike and their ratios stay comparable.
-    start = top_candidates(models, image, bank, preset=p, n=method_n)
-    runs = {m: (lambda m=m: refine(models, image, start, key, preset=p, method=m, R=1).motion) for m in methods}
-    first = {}
-    for method, run in runs.items():
-        t0 = time.perf_counter()
-        jax.block_until_ready(run())
-        first[method] = round(time.perf_counter() - t0, 2)
-    times = {m: [] for m in methods}
-    for _ in range(repeats):
+    for n in sorted({method_n, *ratio_ns}):
+        chosen = methods if n == method_n else [m for m in ("dmo", "langevin") if m in methods]
+        start = top_candidates(models, image, bank, preset=p, n=n)
+        runs = {m: (lambda m=m: refine(models, image, start, key, preset=p, method=m, R=1).motion) for m in chosen}
+        first = {}
         for method, run in runs.items():
-            times[method] += time_call(run, repeats=1, warmup=0)
-    for method in methods:
-        rows.append({"method": method, "n": method_n, "R": 1 if method == "dmo" else None, "reuse": True,
-                     "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
-                     "first_call_s": first[method]})
+            t0 = time.perf_counter()
+            jax.block_until_ready(run())
+            first[method] = round(time.perf_counter() - t0, 2)
+        times = {m: [] for m in chosen}
+        for _ in range(repeats):
+            for method, run in runs.items():
+                times[method] += time_call(run, repeats=1, warmup=0)
+        for method in chosen:
+            rows.append({"method": method, "n": n, "R": 1 if method == "dmo" else None, "reuse": True,
+                         "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
+                         "first_call_s": first[method]})
     return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows,
             "cpu": _cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
 
@@ -471,9 +474,9 @@ def format_predict_benchmark(r: dict) -> str:
         lines.append(f"| {row['stage']} | {row['method']} | {row['n']} | {row['R'] if row['R'] is not None else '–'} | "
                      f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
                      f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
-    ms = {(row["stage"], row["method"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
-    for stage in ("predict", "refine"):
-        if (stage, "dmo") in ms and (stage, "langevin") in ms:
-            lines.append(f"{stage}: 100-step Langevin / DMO (R = 1) wall time = "
-                         f"{ms[stage, 'langevin'] / ms[stage, 'dmo']:.1f}x")
+    ms = {(row["stage"], row["method"], row["n"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
+    for stage, method, n in sorted(k for k in ms if k[1] == "langevin"):
+        if (stage, "dmo", n) in ms:
+            lines.append(f"{stage}, n = {n}: 100-step Langevin / DMO (R = 1) wall time = "
+                         f"{ms[stage, 'langevin', n] / ms[stage, 'dmo', n]:.1f}x")
     return "\n".join(lines)

@@ -372,6 +372,8 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="how the EBM's head reads depth, as given to bin/train_all (e.g. --set depth_cue=true)")
     args = parser.parse_args(argv)
 
     from envs.cli import default_data_dir, task_names
@@ -387,11 +389,11 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     from envs.platform import enable_compilation_cache
 
     enable_compilation_cache()
-    preset = get_preset(args.preset)
     try:
+        preset = get_preset(args.preset).with_overrides(args.set)
         result = ebm_heldout_misses(names[0], preset=preset, workdir=args.workdir,
                                     data_root=args.data or default_data_dir(preset.image_size))
-    except (DatasetError, TrainingError) as err:
+    except (DatasetError, TrainingError, ValueError) as err:
         _fail(str(err))
     print(json.dumps(result, indent=1))
     distances = sorted(m["distance_m"] for m in result["misses"])
@@ -400,3 +402,6 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
               f"{sorted({m['winner'] for m in result['misses']})}; winner-positive distance "
               f"{distances[0]:.3f}-{distances[-1]:.3f} m, median {distances[len(distances) // 2]:.3f} m",
               file=sys.stderr)
+    near = [sum(d < cm / 100 for d in result["nearest_in_data_m"]) / result["episodes"] for cm in (1, 2)]
+    print(f"another scene's motion lies within 1 / 2 cm of the positive in {near[0]:.0%} / {near[1]:.0%} "
+          "of the episodes", file=sys.stderr)

@@ -80,6 +80,18 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
         winner = cands[m["episode"], m["candidate"]]
         recorded = any(np.array_equal(winner, test.motions[j]) for j in range(4) if j != m["episode"])
         assert m["winner"] == ("in-data" if recorded else "vae") and m["distance_m"] >= 0
+    # the near-tie each positive faces: the closest of its other scenes' motions (candidates 1..31)
+    from dmo_jax.losses import position_error
+
+    K = np.asarray(test.meta["intrinsics"], np.float32)
+    for i, nearest in enumerate(result["nearest_in_data_m"]):
+        expected = min(float(position_error(cands[i, w][None], cands[i, 0][None], K, TINY.image_size))
+                       for w in range(1, 32))
+        assert nearest == pytest.approx(expected, abs=1e-4)
+    # networks trained without the depth cue refuse to load with it, naming the setting
+    proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work),
+                "--set", "depth_cue=true", check=False)
+    assert proc.returncode != 0 and "depth_cue" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path):

@@ -475,7 +475,7 @@ def format_predict_benchmark(r: dict) -> str:
                      f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
                      f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
     ms = {(row["stage"], row["method"], row["n"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
-    for stage, method, n in sorted(k for k in ms if k[1] == "langevin"):
+    for stage, _, n in sorted(k for k in ms if k[1] == "langevin"):
         if (stage, "dmo", n) in ms:
             lines.append(f"{stage}, n = {n}: 100-step Langevin / DMO (R = 1) wall time = "
                          f"{ms[stage, 'langevin', n] / ms[stage, 'dmo', n]:.1f}x")

@@ -1,5 +1,5 @@
 """Library functions behind the method's commands (``bin/train_all``, ``bin/evaluate``,
-``bin/cost``, ``bin/benchmark``)."""
+``bin/cost``, ``bin/benchmark``, ``bin/compare``)."""
 from __future__ import annotations
 
 import argparse
@@ -179,6 +179,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             check_writable_dir(viz.resolve().parent, f"directory {viz.resolve().parent} (for --save-viz {viz})")
 
     from dmo_jax import training
+    from dmo_jax.comparison import row_label
     from dmo_jax.config import get_preset
     from dmo_jax.evaluation import evaluate_methods
     from envs import evaluation
@@ -207,7 +208,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         except (DatasetError, training.TrainingError, ValueError) as err:
             _fail(str(err))
         for result in found:
-            label = _setting_label(result)
+            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps})
             by_row.setdefault(label, {})[name] = result
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
                   f"(execution {result['seconds']:.1f} s"
@@ -232,13 +233,6 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                          "episodes": args.episodes, "backend": args.backend, "data": data,
                          "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set},
             "results": results})
-
-
-def _setting_label(result: dict) -> str:
-    """``dmo n=8 R=1``, ``sort n=8``, ``expert``: a result's row in the success table."""
-    if "n" not in result:  # a world method (expert, blind, nearest)
-        return result["method"]
-    return f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
 
 
 def cost_main(argv: list[str] | None = None) -> None:
@@ -405,3 +399,25 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     near = [sum(d < cm / 100 for d in result["nearest_in_data_m"]) / result["episodes"] for cm in (1, 2)]
     print(f"another scene's motion lies within 1 / 2 cm of the positive in {near[0]:.0%} / {near[1]:.0%} "
           "of the episodes", file=sys.stderr)
+
+
+def compare_main(argv: list[str] | None = None) -> None:
+    """``bin/compare``: one success table from several ``bin/evaluate --json`` files, and one row
+    against the others scene by scene."""
+    parser = argparse.ArgumentParser(
+        description="Merge bin/evaluate --json files into one success table and compare one row against every "
+        "other scene by scene (the scenes only one of the two solves, with an exact sign test).")
+    parser.add_argument("files", nargs="+", help="bin/evaluate --json files of the same networks and test scenes")
+    parser.add_argument("--against", default="dmo n=8 R=1",
+                        help="the row compared with the others, as the table labels it (default 'dmo n=8 R=1')")
+    parser.add_argument("--alpha", type=float, default=0.05, help="significance level of the sign test (default 0.05)")
+    args = parser.parse_args(argv)
+    if not 0 < args.alpha < 1:
+        _fail(f"--alpha must lie between 0 and 1, got {args.alpha}")
+
+    from dmo_jax.comparison import comparison_report, load_evaluations
+
+    try:
+        print(comparison_report(load_evaluations(args.files), args.against, args.alpha))
+    except ValueError as err:
+        _fail(str(err))

@@ -28,7 +28,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 from dmo_jax import training
-from dmo_jax.cli import benchmark_main, cost_main, evaluate_main, train_all_main
+from dmo_jax.cli import benchmark_main, compare_main, cost_main, evaluate_main, train_all_main
 from dmo_jax.config import get_preset
 from dmo_jax.inference import Models, predict
 from dmo_jax.motion import time_grid
@@ -45,7 +45,7 @@ TASK = "reach_target"
 COMMANDS = {
     "render": render_main, "execute": execute_main, "generate_data": generate_data_main,
     "task_report": task_report_main, "evaluate": evaluate_main, "train_all": train_all_main,
-    "cost": cost_main, "benchmark": benchmark_main,
+    "cost": cost_main, "benchmark": benchmark_main, "compare": compare_main,
 }
 
 
@@ -284,6 +284,10 @@ COMMAND_CASES = [
     _case("benchmark", ["--only", "encoder", "--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
     _case("benchmark", ["--only", "encoder", "--repeats", "0"], "--repeats must be a positive integer, got 0"),
     _case("benchmark", ["--only", "execution", "--episodes", "0"], "--episodes must be a positive integer, got 0"),
+    # bin/compare
+    _case("compare", ["{missing}/eval.json"], "does_not_exist/eval.json: no such file"),
+    _case("compare", ["{afile}"], "a_file.txt: not a readable JSON file"),
+    _case("compare", ["{afile}", "--alpha", "1.5"], "--alpha must lie between 0 and 1, got 1.5"),
 ]
 
 

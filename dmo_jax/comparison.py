@@ -1,0 +1,114 @@
+"""Comparing methods scene by scene, from ``bin/evaluate --json`` files.
+
+Every method is evaluated on the same test scenes, so two methods' results on a task are paired:
+what decides between them is the scenes one solves and the other does not. With 100 scenes a
+success rate alone has a standard error of about 5 points; the exact sign test on those
+discordant scenes says whether a difference is more than that noise.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import binomtest
+
+# {row label: {task name: per-scene success, int (episodes,)}}, rows in the order first seen.
+Rows = dict[str, dict[str, np.ndarray]]
+
+
+def row_label(result: dict, settings: dict) -> str:
+    """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row; a DMO trained with a non-default
+    number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it."""
+    if "n" not in result:  # a world method (expert, blind, nearest)
+        return result["method"]
+    label = f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
+    trained = settings.get("dmo_train_steps")
+    return label + (f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else "")
+
+
+def load_evaluations(paths) -> Rows:
+    """Per-scene successes of every (row, task) in the given ``bin/evaluate --json`` files.
+
+    Raises ValueError when a file is missing, is not an evaluation file, or gives a row and
+    task another file already gave (results of different networks must not be mixed silently).
+    """
+    rows: Rows = {}
+    source: dict[tuple[str, str], str] = {}
+    for path in map(Path, paths):
+        try:
+            payload = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"{path}: no such file") from None
+        except (OSError, json.JSONDecodeError) as err:
+            raise ValueError(f"{path}: not a readable JSON file ({err})") from None
+        results = payload.get("results") if isinstance(payload, dict) else None
+        if not isinstance(results, list) or not all(isinstance(r, dict) and "episode_success" in r for r in results):
+            raise ValueError(f"{path}: not a `bin/evaluate --json` file (expected a 'results' list whose entries "
+                             "have 'episode_success')")
+        for result in results:
+            label, task = row_label(result, payload.get("settings", {})), result["task"]
+            if (label, task) in source:
+                raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}; compare results "
+                                 "of different networks in separate calls")
+            source[label, task] = str(path)
+            rows.setdefault(label, {})[task] = np.asarray(result["episode_success"], dtype=int)
+    return rows
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test: the probability of a split at least this uneven between
+    ``wins`` and ``losses`` discordant scenes if either method were as likely to win each."""
+    return 1.0 if wins + losses == 0 else float(binomtest(wins, wins + losses, 0.5).pvalue)
+
+
+def paired_counts(a: np.ndarray, b: np.ndarray) -> tuple[int, int]:
+    """(scenes only ``a`` solves, scenes only ``b`` solves)."""
+    if a.shape != b.shape:
+        raise ValueError(f"cannot pair {a.shape[0]} scenes with {b.shape[0]}; evaluate both on the same episodes")
+    return int(np.sum((a == 1) & (b == 0))), int(np.sum((a == 0) & (b == 1)))
+
+
+def comparison_report(rows: Rows, reference: str, alpha: float = 0.05) -> str:
+    """Markdown: the success table, then ``reference`` against every other row scene by scene
+    (``+wins / −losses``, ``*`` where the sign test gives p < ``alpha``), then how many tasks
+    ``reference`` leads every other row on."""
+    from envs.evaluation import ABBREVIATIONS, TASK_ORDER, success_table
+
+    if reference not in rows:
+        raise ValueError(f"no row '{reference}' to compare against; rows: {', '.join(rows)}")
+    lines = [success_table([(label, {t: float(s.mean()) for t, s in per_task.items()})
+                            for label, per_task in rows.items()]), ""]
+    tasks = [t for t in TASK_ORDER if t in rows[reference]]
+    others = [label for label in rows if label != reference]
+    lines += [f"| {reference}: scenes won / lost against | " + " | ".join(ABBREVIATIONS[t] for t in tasks) + " |",
+              "|---" * (len(tasks) + 1) + "|"]
+    ahead, level, behind_significantly = [], [], {}
+    for task in tasks:
+        margins = []
+        for label in others:
+            if task in rows[label]:
+                wins, losses = paired_counts(rows[reference][task], rows[label][task])
+                margins.append(wins - losses)
+                if losses > wins and sign_test(wins, losses) < alpha:
+                    behind_significantly.setdefault(task, []).append(label)
+        if margins and min(margins) > 0:
+            ahead.append(task)
+        elif margins and min(margins) == 0:
+            level.append(task)
+    for label in others:
+        cells = []
+        for task in tasks:
+            if task not in rows[label]:
+                cells.append("–")
+                continue
+            wins, losses = paired_counts(rows[reference][task], rows[label][task])
+            cells.append(f"+{wins} / −{losses}" + ("*" if sign_test(wins, losses) < alpha else ""))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    abbreviate = lambda names: ", ".join(ABBREVIATIONS[t] for t in names) or "none"  # noqa: E731
+    lines += ["", f"`*`: exact sign test on the scenes only one of the two solves, p < {alpha}.",
+              f"{reference} solves more scenes than every other row on {len(ahead)} of {len(tasks)} tasks "
+              f"({abbreviate(ahead)}), as many as the best of them on {len(level)} ({abbreviate(level)}); "
+              f"significantly fewer than some row on {len(behind_significantly)}"
+              + "".join(f"; {ABBREVIATIONS[t]}: {', '.join(v)}" for t, v in behind_significantly.items()) + "."]
+    return "\n".join(lines)

@@ -1,0 +1,71 @@
+"""bin/compare: one success table from several bin/evaluate --json files, and a row against the
+others scene by scene with an exact sign test."""
+import json
+
+import numpy as np
+import pytest
+
+from dmo_jax.cli import compare_main
+from dmo_jax.comparison import comparison_report, load_evaluations, paired_counts, sign_test
+
+
+def _evaluation(path, results, dmo_train_steps=None):
+    """A file shaped like ``bin/evaluate --json``'s, with per-scene successes."""
+    entries = [{"method": method, "n": 8, "R": 1 if method == "dmo" else None, "task": task,
+                "episodes": len(s), "successes": sum(s), "success_rate": sum(s) / len(s), "episode_success": s}
+               for method, task, s in results]
+    path.write_text(json.dumps({"results": entries, "settings": {"dmo_train_steps": dmo_train_steps}}))
+    return path
+
+
+def test_sign_test_is_exact_and_symmetric():
+    assert sign_test(0, 0) == 1.0
+    assert sign_test(10, 0) == pytest.approx(2 / 2**10)
+    assert sign_test(3, 5) == pytest.approx(sign_test(5, 3))
+    assert sign_test(30, 4) < 0.05 < sign_test(7, 5)
+
+
+def test_paired_counts_need_the_same_scenes():
+    assert paired_counts(np.array([1, 1, 0, 0]), np.array([1, 0, 1, 1])) == (1, 2)
+    with pytest.raises(ValueError, match="cannot pair 3 scenes with 4"):
+        paired_counts(np.array([1, 1, 0]), np.array([1, 0, 1, 1]))
+
+
+def test_report_merges_files_and_counts_paired_scenes(tmp_path):
+    ahead = [1] * 30 + [0] * 70          # solves scenes 0-29
+    behind = [0] * 26 + [1] * 4 + [0] * 70  # solves 26-29: the DMO wins 26, loses none
+    files = [_evaluation(tmp_path / "a.json", [("dmo", "close_box", ahead), ("sort", "close_box", behind),
+                                               ("dmo", "reach_target", behind), ("sort", "reach_target", behind)]),
+             _evaluation(tmp_path / "b.json", [("dmo", "close_box", behind)], dmo_train_steps=5)]
+    rows = load_evaluations(files)
+    assert list(rows) == ["dmo n=8 R=1", "sort n=8", "dmo n=8 R=1 (trained R=5)"]
+    report = comparison_report(rows, "dmo n=8 R=1")
+    assert "| dmo n=8 R=1 | 30 | – |" in report and "| 4 |" in report
+    assert "| sort n=8 | +26 / −0* | +0 / −0 |" in report
+    assert "| dmo n=8 R=1 (trained R=5) | +26 / −0* | – |" in report
+    assert "more scenes than every other row on 1 of 2 tasks (CB), as many as the best of them on 1 (RT)" in report
+    assert "significantly fewer than some row on 0." in report
+
+    reversed_report = comparison_report(rows, "sort n=8")
+    assert "significantly fewer than some row on 1; CB: dmo n=8 R=1." in reversed_report
+
+
+def test_mixing_two_files_of_the_same_row_and_task_is_refused(tmp_path):
+    a = _evaluation(tmp_path / "a.json", [("dmo", "close_box", [1, 0])])
+    b = _evaluation(tmp_path / "b.json", [("dmo", "close_box", [0, 1])])
+    with pytest.raises(ValueError, match="'dmo n=8 R=1' on close_box is also in .*a.json"):
+        load_evaluations([a, b])
+    (tmp_path / "other.json").write_text(json.dumps({"results": [{"method": "dmo"}]}))
+    with pytest.raises(ValueError, match="not a `bin/evaluate --json` file"):
+        load_evaluations([tmp_path / "other.json"])
+
+
+def test_command_prints_the_report_and_rejects_an_unknown_row(tmp_path, capsys):
+    a = _evaluation(tmp_path / "a.json", [("dmo", "close_box", [1, 1, 0]), ("gd", "close_box", [0, 1, 0])])
+    compare_main([str(a)])
+    out = capsys.readouterr().out
+    assert "| gd n=8 | +1 / −0 |" in out and "on 1 of 1 tasks (CB)" in out
+    with pytest.raises(SystemExit) as exit_info:
+        compare_main([str(a), "--against", "langevin n=8"])
+    assert exit_info.value.code == 2
+    assert "no row 'langevin n=8' to compare against; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err

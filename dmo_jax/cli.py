@@ -410,14 +410,19 @@ def compare_main(argv: list[str] | None = None) -> None:
     parser.add_argument("files", nargs="+", help="bin/evaluate --json files of the same networks and test scenes")
     parser.add_argument("--against", default="dmo n=8 R=1",
                         help="the row compared with the others, as the table labels it (default 'dmo n=8 R=1')")
+    parser.add_argument("--rows", help="only these rows, comma-separated, in this order (default: every row, in the "
+                        "order the files give them), e.g. 'dmo n=8 R=1,langevin n=8,gd n=8'")
     parser.add_argument("--alpha", type=float, default=0.05, help="significance level of the sign test (default 0.05)")
     args = parser.parse_args(argv)
     if not 0 < args.alpha < 1:
         _fail(f"--alpha must lie between 0 and 1, got {args.alpha}")
 
-    from dmo_jax.comparison import comparison_report, load_evaluations
+    from dmo_jax.comparison import comparison_report, load_evaluations, select_rows
 
     try:
-        print(comparison_report(load_evaluations(args.files), args.against, args.alpha))
+        rows = load_evaluations(args.files)
+        if args.rows:
+            rows = select_rows(rows, [label.strip() for label in args.rows.split(",") if label.strip()])
+        print(comparison_report(rows, args.against, args.alpha))
     except ValueError as err:
         _fail(str(err))

@@ -56,6 +56,14 @@ def load_evaluations(paths) -> Rows:
     return rows
 
 
+def select_rows(rows: Rows, labels: list[str]) -> Rows:
+    """``rows`` restricted to ``labels``, in that order."""
+    missing = [label for label in labels if label not in rows]
+    if missing:
+        raise ValueError(f"no row {', '.join(repr(m) for m in missing)} in these files; rows: {', '.join(rows)}")
+    return {label: rows[label] for label in labels}
+
+
 def sign_test(wins: int, losses: int) -> float:
     """Exact two-sided sign test: the probability of a split at least this uneven between
     ``wins`` and ``losses`` discordant scenes if either method were as likely to win each."""

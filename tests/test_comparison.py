@@ -69,3 +69,10 @@ def test_command_prints_the_report_and_rejects_an_unknown_row(tmp_path, capsys):
         compare_main([str(a), "--against", "langevin n=8"])
     assert exit_info.value.code == 2
     assert "no row 'langevin n=8' to compare against; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err
+
+    compare_main([str(a), "--rows", "gd n=8, dmo n=8 R=1"])
+    out = capsys.readouterr().out
+    assert out.index("| gd n=8 | 33 |") < out.index("| dmo n=8 R=1 | 67 |")
+    with pytest.raises(SystemExit):
+        compare_main([str(a), "--rows", "dmo n=8 R=1,dfo n=8"])
+    assert "no row 'dfo n=8' in these files; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err

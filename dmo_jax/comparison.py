@@ -89,30 +89,24 @@ def comparison_report(rows: Rows, reference: str, alpha: float = 0.05) -> str:
                             for label, per_task in rows.items()]), ""]
     tasks = [t for t in TASK_ORDER if t in rows[reference]]
     others = [label for label in rows if label != reference]
+    counts = {(label, task): paired_counts(rows[reference][task], rows[label][task])
+              for label in others for task in tasks if task in rows[label]}
     lines += [f"| {reference}: scenes won / lost against | " + " | ".join(ABBREVIATIONS[t] for t in tasks) + " |",
               "|---" * (len(tasks) + 1) + "|"]
+    for label in others:
+        cells = [f"+{counts[label, t][0]} / −{counts[label, t][1]}" + ("*" if sign_test(*counts[label, t]) < alpha else "")
+                 if (label, t) in counts else "–" for t in tasks]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     ahead, level, behind_significantly = [], [], {}
     for task in tasks:
-        margins = []
-        for label in others:
-            if task in rows[label]:
-                wins, losses = paired_counts(rows[reference][task], rows[label][task])
-                margins.append(wins - losses)
-                if losses > wins and sign_test(wins, losses) < alpha:
-                    behind_significantly.setdefault(task, []).append(label)
+        margins = [w - l for (label, t), (w, l) in counts.items() if t == task]
         if margins and min(margins) > 0:
             ahead.append(task)
         elif margins and min(margins) == 0:
             level.append(task)
-    for label in others:
-        cells = []
-        for task in tasks:
-            if task not in rows[label]:
-                cells.append("–")
-                continue
-            wins, losses = paired_counts(rows[reference][task], rows[label][task])
-            cells.append(f"+{wins} / −{losses}" + ("*" if sign_test(wins, losses) < alpha else ""))
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        behind = [label for (label, t), (w, l) in counts.items() if t == task and l > w and sign_test(w, l) < alpha]
+        if behind:
+            behind_significantly[task] = behind
     abbreviate = lambda names: ", ".join(ABBREVIATIONS[t] for t in names) or "none"  # noqa: E731
     lines += ["", f"`*`: exact sign test on the scenes only one of the two solves, p < {alpha}.",
               f"{reference} solves more scenes than every other row on {len(ahead)} of {len(tasks)} tasks "

@@ -91,10 +91,11 @@ def comparison_report(rows: Rows, reference: str, alpha: float = 0.05) -> str:
     others = [label for label in rows if label != reference]
     counts = {(label, task): paired_counts(rows[reference][task], rows[label][task])
               for label in others for task in tasks if task in rows[label]}
+    p_values = {key: sign_test(*wins_losses) for key, wins_losses in counts.items()}
     lines += [f"| {reference}: scenes won / lost against | " + " | ".join(ABBREVIATIONS[t] for t in tasks) + " |",
               "|---" * (len(tasks) + 1) + "|"]
     for label in others:
-        cells = [f"+{counts[label, t][0]} / −{counts[label, t][1]}" + ("*" if sign_test(*counts[label, t]) < alpha else "")
+        cells = [f"+{counts[label, t][0]} / −{counts[label, t][1]}" + ("*" if p_values[label, t] < alpha else "")
                  if (label, t) in counts else "–" for t in tasks]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     ahead, level, behind_significantly = [], [], {}
@@ -104,7 +105,7 @@ def comparison_report(rows: Rows, reference: str, alpha: float = 0.05) -> str:
             ahead.append(task)
         elif margins and min(margins) == 0:
             level.append(task)
-        behind = [label for (label, t), (w, l) in counts.items() if t == task and l > w and sign_test(w, l) < alpha]
+        behind = [label for (label, t), (w, l) in counts.items() if t == task and l > w and p_values[label, t] < alpha]
         if behind:
             behind_significantly[task] = behind
     abbreviate = lambda names: ", ".join(ABBREVIATIONS[t] for t in names) or "none"  # noqa: E731

@@ -29,6 +29,7 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description="Per task: generate the data if missing, then train VAE -> EBM -> DMO, skipping what is "
         "trained and resuming what was interrupted.")
+    _add_recipe_argument(parser)
     parser.add_argument("--tasks", default="all", help="'all' or a comma-separated list of task names")
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
@@ -56,7 +57,7 @@ def train_all_main(argv: list[str] | None = None) -> None:
     non_negative("--seed", args.seed)
     enable_compilation_cache()
     try:
-        preset = get_preset(args.preset, args.variant).with_overrides(args.set)
+        preset = get_preset(args.preset, args.variant, args.recipe).with_overrides(args.set)
     except ValueError as err:
         _fail(str(err))
     names = task_names(args.tasks)
@@ -69,7 +70,8 @@ def train_all_main(argv: list[str] | None = None) -> None:
     training.maybe_initialize_distributed()
     summaries, start = {}, time.perf_counter()
     for name in names:
-        print(f"[{name}] preset {preset.name}, variant {preset.variant}, negatives {args.negatives}"
+        print(f"[{name}] preset {preset.name}, recipe {preset.recipe}, variant {preset.variant}, "
+              f"negatives {args.negatives}"
               + (f", {', '.join(args.set)}" if args.set else ""), file=sys.stderr)
         try:
             summaries[name] = workflow.train_task(name, preset, data, args.workdir, args.negatives, args.dmo_steps,
@@ -80,6 +82,15 @@ def train_all_main(argv: list[str] | None = None) -> None:
     print(f"total wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         _write_json(args.json, summaries)
+
+
+def _add_recipe_argument(parser, purpose: str = "what the networks train on") -> None:
+    from dmo_jax.config import RECIPES
+
+    parser.add_argument("--recipe", choices=RECIPES,
+                        help=f"training recipe: {purpose}. paper: the paper's negatives and DMO inputs; bank: "
+                        "about half of the EBM's in-data negatives are each scene's nearest training motions "
+                        "(default: the preset's own, dmo_jax.config.RECIPES)")
 
 
 def _summary_table(summaries: dict) -> str:
@@ -117,6 +128,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description="Predict from each test scene's first image, execute the ranked candidates (falling back "
         "to the next when one is abandoned) and report success in the paper's layout.")
+    _add_recipe_argument(parser, "the networks of that recipe (as given to bin/train_all)")
     parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--method", required=True,
                         help=f"one of {', '.join(WORLD_METHODS + METHODS)}, or a comma-separated list (learned "
@@ -188,7 +200,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
     enable_compilation_cache()
     try:
-        preset = get_preset(args.preset, args.variant).with_overrides(args.set)
+        preset = get_preset(args.preset, args.variant, args.recipe).with_overrides(args.set)
     except ValueError as err:
         _fail(str(err))
     data = args.data or default_data_dir(preset.image_size)
@@ -208,7 +220,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         except (DatasetError, training.TrainingError, ValueError) as err:
             _fail(str(err))
         for result in found:
-            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps})
+            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps, "recipe": preset.recipe})
             by_row.setdefault(label, {})[name] = result
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
                   f"(execution {result['seconds']:.1f} s"
@@ -216,7 +228,11 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                      f"{100 * result['first_error_m']:.1f} cm from the demonstration ("
                      f"{100 * result['first_depth_error_m']:.1f} cm in depth), EBM's top bank motion "
                      f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
-                     f"{result['optimised_first']:.0%} of scenes)" if "predict_seconds" in result else ")"),
+                     f"{result['optimised_first']:.0%} of scenes" + (
+                         f"; the top {result['n']} lie {100 * result['mean_start_error_m']:.1f} cm from it, the "
+                         f"optimised ones {100 * result['mean_optimised_error_m']:.1f} cm"
+                         if "mean_optimised_error_m" in result else "") + ")"
+                     if "predict_seconds" in result else ")"),
                   file=sys.stderr)
     rows = [(label, {t: r["success_rate"] for t, r in per_task.items()}) for label, per_task in by_row.items()]
     results = [r for per_task in by_row.values() for r in per_task.values()]
@@ -229,7 +245,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             "task": names[0] if len(names) == 1 else names, "method": method, "episodes": episodes,
             "successes": successes, "success_rate": successes / episodes,
             "settings": {"method": method, "preset": preset.name, "variant": preset.variant,
-                         "negatives": args.negatives, "dmo_train_steps": args.dmo_train_steps,
+                         "recipe": preset.recipe, "negatives": args.negatives,
+                         "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
                          "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set},
             "results": results})
@@ -362,6 +379,7 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     from dmo_jax.config import DEFAULT_PRESET, PRESETS
 
     parser = argparse.ArgumentParser(description="Explain the EBM's held-out misses (bin/train_all's ranking).")
+    _add_recipe_argument(parser, "the EBM of that recipe (as given to bin/train_all)")
     parser.add_argument("--task", required=True, help="one task name")
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
@@ -384,7 +402,7 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
 
     enable_compilation_cache()
     try:
-        preset = get_preset(args.preset).with_overrides(args.set)
+        preset = get_preset(args.preset, recipe=args.recipe).with_overrides(args.set)
         result = ebm_heldout_misses(names[0], preset=preset, workdir=args.workdir,
                                     data_root=args.data or default_data_dir(preset.image_size))
     except (DatasetError, TrainingError, ValueError) as err:

@@ -121,6 +121,11 @@ class TrainConfig:
     # project onto the positive's pixels, so only the depth read through F can rank them lower.
     ebm_depth_negatives: int = 0
     depth_negative_shift: float = 0.08
+    # Not in the paper (0 = off): this many of the ebm_gt_negatives are drawn, per positive,
+    # from its near_pool nearest other training motions (dmo_jax.neighbours) instead of
+    # random other images of the batch: the bank motions it competes with at prediction.
+    ebm_near_negatives: int = 0
+    near_pool: int = 16
     dmo_steps: int = 100_000
     dmo_batch: int = 16
     dmo_train_iters: int = 5  # R during training ("Ours-5")
@@ -137,6 +142,32 @@ class TrainConfig:
     def __post_init__(self):
         if self.dmo_inputs not in DMO_INPUTS:
             raise ValueError(f"dmo_inputs={self.dmo_inputs!r}: expected one of {', '.join(DMO_INPUTS)}")
+        if self.ebm_near_negatives > self.ebm_gt_negatives:
+            raise ValueError(f"ebm_near_negatives={self.ebm_near_negatives} exceeds ebm_gt_negatives="
+                             f"{self.ebm_gt_negatives}: the near negatives are part of the in-data ones")
+        if self.ebm_near_negatives > self.near_pool:
+            raise ValueError(f"ebm_near_negatives={self.ebm_near_negatives} exceeds near_pool={self.near_pool}: "
+                             "they are drawn without replacement from that many nearest motions")
+
+
+#: Training recipes (``Preset.with_recipe``): what the networks train on.
+#:
+#: * ``paper``: the paper's. The EBM's in-data negatives are other images' motions drawn at
+#:   random from the batch; the DMO's inputs are VAE samples of the ground truth.
+#: * ``bank``: as ``paper``, but about half of the EBM's in-data negatives (6 of the ``cpu``
+#:   preset's 11) are each positive's nearest other training motions (of its 16 nearest), the
+#:   motions it must beat in the bank at prediction; the random ones still teach it the image.
+RECIPES = ("paper", "bank")
+
+
+def recipe_settings(recipe: str, train: TrainConfig) -> dict:
+    """The :class:`TrainConfig` fields ``recipe`` sets, for a preset training with ``train``."""
+    if recipe == "paper":
+        return {"ebm_near_negatives": 0}
+    if recipe == "bank":
+        near = (train.ebm_gt_negatives + 1) // 2
+        return {"ebm_near_negatives": near, "near_pool": max(16, near)}
+    raise ValueError(f"unknown recipe {recipe!r}; valid recipes: {', '.join(RECIPES)}")
 
 
 @dataclass(frozen=True)
@@ -147,6 +178,7 @@ class Preset:
     head: HeadConfig = field(default_factory=HeadConfig)
     vae: VAEConfig = field(default_factory=VAEConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+    recipe: str = "paper"  # one of RECIPES; set with with_recipe, which also sets its TrainConfig fields
 
     def __post_init__(self):
         if self.encoder.out_dim != self.head.width:  # (+1 channel of depth with head.depth_cue)
@@ -163,6 +195,11 @@ class Preset:
 
     def with_variant(self, variant: str) -> "Preset":
         return dataclasses.replace(self, head=dataclasses.replace(self.head, variant=check_variant(variant)))
+
+    def with_recipe(self, recipe: str) -> "Preset":
+        """This preset training with ``recipe`` (one of :data:`RECIPES`)."""
+        train = dataclasses.replace(self.train, **recipe_settings(recipe, self.train))
+        return dataclasses.replace(self, recipe=recipe, train=train)
 
     def with_compute_dtype(self, dtype: str) -> "Preset":
         return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
@@ -246,9 +283,11 @@ PRESETS = {p.name: p for p in (TINY, CPU, PAPER)}
 DEFAULT_PRESET = "cpu"
 
 
-def get_preset(name: str = DEFAULT_PRESET, variant: str | None = None) -> Preset:
-    """The preset called ``name`` (``tiny``, ``cpu``, ``paper``), optionally with another variant."""
+def get_preset(name: str = DEFAULT_PRESET, variant: str | None = None, recipe: str | None = None) -> Preset:
+    """The preset called ``name`` (``tiny``, ``cpu``, ``paper``), optionally with another variant
+    or training recipe (:data:`RECIPES`; default the preset's own)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
     preset = PRESETS[name]
-    return preset if variant is None else preset.with_variant(variant)
+    preset = preset if variant is None else preset.with_variant(variant)
+    return preset if recipe is None else preset.with_recipe(recipe)

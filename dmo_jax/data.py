@@ -90,10 +90,14 @@ def augment_batch(images: jnp.ndarray, key: jax.Array) -> jnp.ndarray:
 # --------------------------------------------------------------------------- batches
 @dataclasses.dataclass(frozen=True)
 class MotionDataset:
-    """A task split in memory: ``images [N, S, S, 4]`` float32, ``motions [N, 101, 11]`` float32."""
+    """A task split in memory: ``images [N, S, S, 4]`` float32, ``motions [N, 101, 11]`` float32,
+    and optionally ``neighbours [N, K]`` int32, the indices of each motion's nearest training
+    motions, nearest first (``dmo_jax.neighbours``; for the training split the *other* training
+    motions, which :meth:`batch` with ``near`` needs)."""
 
     images: np.ndarray
     motions: np.ndarray
+    neighbours: np.ndarray | None = None
 
     @classmethod
     def from_split(cls, split) -> "MotionDataset":
@@ -102,15 +106,23 @@ class MotionDataset:
     def __len__(self) -> int:
         return len(self.motions)
 
-    def batch(self, seed: int, step: int, size: int, process: int = 0) -> dict[str, np.ndarray]:
+    def batch(self, seed: int, step: int, size: int, process: int = 0, near: int = 0) -> dict[str, np.ndarray]:
         """The batch of ``step``: a pure function of (seed, step, process), so a resumed run
         sees exactly the batches an uninterrupted one would. Sampled without replacement
-        within the batch (an image's negatives are the *other* images' motions)."""
+        within the batch (an image's negatives are the *other* images' motions). ``near`` > 0
+        adds ``near [size, near, 101, 11]``: each motion's ``near`` nearest other motions."""
         if size > len(self):
             raise ValueError(f"batch size {size} exceeds the dataset's {len(self)} episodes")
         rng = np.random.default_rng([seed, step, process])
         idx = np.sort(rng.choice(len(self), size, replace=False))
-        return {"images": self.images[idx], "motions": self.motions[idx]}
+        batch = {"images": self.images[idx], "motions": self.motions[idx]}
+        if near:
+            if self.neighbours is None or self.neighbours.shape[1] < near:
+                have = 0 if self.neighbours is None else self.neighbours.shape[1]
+                raise ValueError(f"batches with {near} nearest motions need the dataset's neighbours "
+                                 f"(dmo_jax.neighbours), {have} per motion here")
+            batch["near"] = self.motions[self.neighbours[idx, :near]]
+        return batch
 
     def statistics(self) -> dict:
         """Summary saved beside checkpoints (what the model was trained on)."""

@@ -82,8 +82,10 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     ``first_error_m`` of the first-ranked candidate, ``start_error_m`` of the EBM's top bank
     motion, ``best_start_error_m`` of the closest of the ``n`` starts; ``first_depth_error_m``,
     the part of ``first_error_m`` along the camera's viewing axis (mean |z - z_demo|, which no
-    pixel position shows); and ``optimised_first``, the fraction of episodes whose first-ranked
-    candidate is an optimised motion, not a start."""
+    pixel position shows); ``optimised_first``, the fraction of episodes whose first-ranked
+    candidate is an optimised motion, not a start; and, for methods that optimise,
+    ``mean_start_error_m`` / ``mean_optimised_error_m``, the mean error of the n starts and of
+    the optimised motions (for the DMO at R = 1: the EBM's top n before and after one refinement)."""
     import jax.numpy as jnp
 
     from .losses import position_error
@@ -91,14 +93,18 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     error = jax.jit(jax.vmap(jax.vmap(lambda m, d: position_error(m, d, intrinsics, image_size), (0, None))))
     demos = jnp.asarray(demonstrations, jnp.float32)
     start_errors = np.asarray(error(jnp.asarray(starts), demos))
-    first = candidates[:, :1]
-    is_start = np.any(np.all(first == starts, axis=(2, 3)), axis=1)
+    errors = np.asarray(error(jnp.asarray(candidates), demos))  # [E, K]
+    is_start = np.any(np.all(candidates[:, :, None] == starts[:, None], axis=(3, 4)), axis=2)  # [E, K]
     depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
-    return {"first_error_m": round(float(np.mean(error(jnp.asarray(first), demos))), 4),
-            "first_depth_error_m": round(float(np.mean(depth_error)), 4),
-            "start_error_m": round(float(np.mean(start_errors[:, 0])), 4),
-            "best_start_error_m": round(float(np.mean(start_errors.min(axis=1))), 4),
-            "optimised_first": round(float(np.mean(~is_start)), 3)}
+    out = {"first_error_m": round(float(np.mean(errors[:, 0])), 4),
+           "first_depth_error_m": round(float(np.mean(depth_error)), 4),
+           "start_error_m": round(float(np.mean(start_errors[:, 0])), 4),
+           "best_start_error_m": round(float(np.mean(start_errors.min(axis=1))), 4),
+           "optimised_first": round(float(np.mean(~is_start[:, 0])), 3)}
+    if (~is_start).any():
+        out["mean_start_error_m"] = round(float(np.mean(start_errors)), 4)
+        out["mean_optimised_error_m"] = round(float(np.mean(errors[~is_start])), 4)
+    return out
 
 
 def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
@@ -164,7 +170,7 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
 
     _, test, (intrinsics, size) = load_task_data(task_name, data_root, preset, generate=False)
     paths = RunPaths.of(workdir, task_name, preset)
-    ebm_params, _ = training.load_params(paths.ebm(preset.variant, negatives), training.ebm_spec(preset, negatives))
+    ebm_params, _ = training.load_params(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
     vae_params, _ = training.load_params(paths.vae(), training.vae_spec(preset))
     ebm = EBMNet(preset)
     cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)

@@ -49,7 +49,7 @@ def vae_loss(vae, params, motions, key, cfg: TrainConfig, step):
 
 
 # --------------------------------------------------------------------------- EBM
-def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: str = "in-data+vae"):
+def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: str = "in-data+vae", near=None):
     """Per image: the positive first, then negatives -> ``[B, 1 + K, 101, 11]``.
 
     ``in-data+vae``: ``ebm_gt_negatives`` ground-truth motions of *other* images in the batch
@@ -57,6 +57,11 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     from batch motions and shuffled across the batch. ``only-vae``: all K negatives from the
     VAE (paper Table 4 b). Either way ``ebm_depth_negatives`` copies of the positive that
     drift in depth alone follow (:func:`depth_negatives`; none by default).
+
+    ``cfg.ebm_near_negatives`` > 0 (``in-data+vae`` only) draws that many of the in-data
+    negatives, without replacement, from ``near [B, P, 101, 11]``, each positive's P nearest
+    other training motions (``MotionDataset.batch(near=P)``): the bank motions that compete
+    with the positive at prediction.
     """
     if negatives not in NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {NEGATIVE_MODES}")
@@ -64,11 +69,20 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     k_gt, k_vae, k_perm = jax.random.split(key, 3)
     n_gt = cfg.ebm_gt_negatives if negatives == "in-data+vae" else 0
     n_vae = cfg.ebm_vae_negatives + (cfg.ebm_gt_negatives - n_gt)
+    n_near = cfg.ebm_near_negatives if n_gt else 0
     parts = [motions[:, None]]
-    if n_gt:
+    if n_near:
+        if near is None or near.shape[1] < n_near:
+            raise ValueError(f"{n_near} near negatives need each positive's nearest motions (near [B, P >= "
+                             f"{n_near}, 101, 11]), got {None if near is None else near.shape}")
+        # a key of their own, so the random in-data and VAE negatives keep theirs
+        k_near = jax.random.fold_in(key, 5)
+        pick = jnp.argsort(jax.random.uniform(k_near, near.shape[:2]), axis=1)[:, :n_near]
+        parts.append(jnp.take_along_axis(near, pick[:, :, None, None], axis=1))
+    if n_gt - n_near:
         if b < 2:
             raise ValueError("in-data negatives need a batch of at least 2 images")
-        offset = jax.random.randint(k_gt, (b, n_gt), 1, b)  # never 0: never the image's own motion
+        offset = jax.random.randint(k_gt, (b, n_gt - n_near), 1, b)  # never 0: never the image's own motion
         parts.append(motions[(jnp.arange(b)[:, None] + offset) % b])
     samples = vae.sample_around(vae_params, motions, k_vae, cfg.vae_negative_sigma, num_samples=n_vae)
     flat = samples.reshape((b * n_vae,) + motions.shape[1:])

@@ -97,7 +97,8 @@ class ModelSpec:
 
     ``loss_fn(params, batch, key, extra, step) -> (loss, metrics)``; ``eval_fn(params, extra) ->
     metrics`` on held-out data (or None); ``init_fn(key) -> params``; ``meta``: what the
-    checkpoint must match to be resumed or loaded.
+    checkpoint must match to be resumed or loaded; ``near``: each batch also carries every
+    positive's ``near`` nearest other training motions (``MotionDataset.batch``).
     """
 
     name: str
@@ -108,6 +109,7 @@ class ModelSpec:
     batch_size: int
     meta: dict
     config: TrainConfig
+    near: int = 0
 
 
 def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=None) -> ModelSpec:
@@ -142,38 +144,56 @@ def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
     then the paper's 63 negatives, 31 other held-out motions (indices 1..31) and 32 VAE samples
     at 2 sigma; a fixed key, so every evaluation ranks the same sets."""
     counts = dataclasses.replace(preset.train, ebm_gt_negatives=HELDOUT_GT_NEGATIVES,
-                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES, ebm_depth_negatives=0)
+                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES, ebm_depth_negatives=0,
+                                 ebm_near_negatives=0)
     return losses.ebm_candidates(VAENet.from_preset(preset), vae_params, jnp.asarray(motions),
                                  jax.random.key(1234), counts, "in-data+vae")
 
 
+#: ``near_top1``: the positive against its this many nearest training motions (the bank's closest rivals).
+HELDOUT_NEAR_NEGATIVES = 63
+
+
+def near_negatives_meta(cfg: TrainConfig) -> list[int]:
+    """``[near negatives, pool]`` an EBM trains with (``[0, 0]`` when off): in its checkpoints."""
+    return [cfg.ebm_near_negatives, cfg.near_pool] if cfg.ebm_near_negatives else [0, 0]
+
+
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
-             augment: bool = True) -> ModelSpec:
-    """``extra`` = the trained VAE's parameters (they make the negatives)."""
+             augment: bool = True, heldout_near: np.ndarray | None = None) -> ModelSpec:
+    """``extra`` = the trained VAE's parameters (they make the negatives). ``heldout_near
+    [N, 63, 101, 11]``: each held-out motion's nearest training motions, for ``near_top1``."""
     if negatives not in losses.NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {losses.NEGATIVE_MODES}")
     net, vae, cfg = EBMNet(preset), VAENet.from_preset(preset), preset.train
+    near = cfg.near_pool if cfg.ebm_near_negatives and negatives == "in-data+vae" else 0
 
     def loss_fn(params, batch, key, vae_params, step):
         k_neg, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
-        cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives)
+        cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives, batch.get("near"))
         return losses.ebm_loss(net, params, images, cands, k_loss)
 
     @jax.jit  # compiled once per run, the VAE's negatives included
-    def evaluate(params, vae_params, images, motions):
+    def evaluate(params, vae_params, images, motions, rivals):
         metrics = losses.ebm_eval(net, params, images, heldout_ebm_candidates(preset, vae_params, motions))
         depth = losses.depth_negatives(motions, jax.random.key(4321), HELDOUT_DEPTH_NEGATIVES, DEPTH_SHIFT)
-        depth_metrics = losses.ebm_eval(net, params, images, jnp.concatenate([motions[:, None], depth], axis=1))
-        return {**metrics, "depth_top1": depth_metrics["top1"]}
+        metrics["depth_top1"] = losses.ebm_eval(net, params, images,
+                                                jnp.concatenate([motions[:, None], depth], axis=1))["top1"]
+        if rivals is not None:
+            metrics["near_top1"] = losses.ebm_eval(net, params, images,
+                                                   jnp.concatenate([motions[:, None], rivals], axis=1))["top1"]
+        return metrics
 
     def eval_fn(params, vae_params):
-        return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions))
+        rivals = None if heldout_near is None else jnp.asarray(heldout_near)
+        return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions), rivals)
 
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "negatives": negatives}, cfg)
+                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg)},
+                     cfg, near)
 
 
 def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionDataset | None = None,
@@ -240,7 +260,7 @@ def _head_meta(preset: Preset) -> dict:
 
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
-_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0}
+_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0]}
 
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
@@ -358,7 +378,7 @@ def fit(
         return skips
 
     for step in range(start, end):
-        local = dataset.batch(seed, step, spec.batch_size // jax.process_count(), jax.process_index())
+        local = dataset.batch(seed, step, spec.batch_size // jax.process_count(), jax.process_index(), spec.near)
         state, metrics = step_fn(state, shard_batch(mesh, local), jax.random.fold_in(base_key, step + 1), extra)
         done = step + 1
         # The previous step's flag is read only now, so the host prepares this batch while

@@ -3,7 +3,7 @@
 Work directory layout (``WORKDIR/<task>/<preset>/``)::
 
     vae/                       checkpoints/, metrics.jsonl   (shared by every variant)
-    <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl
+    <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl   (-near<k>of<pool> with near negatives)
     <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl
 
 A model whose checkpoint has reached its step count is loaded, not retrained; an
@@ -19,7 +19,8 @@ import numpy as np
 
 from . import training
 from .config import Preset
-from .data import MotionDataset
+from .data import MotionDataset, network_image
+from .neighbours import split_neighbours
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,16 +34,25 @@ class RunPaths:
     def vae(self) -> Path:
         return self.root / "vae"
 
-    def ebm(self, variant: str, negatives: str) -> Path:
-        return self.root / variant / f"ebm-{negatives}"
+    def ebm(self, preset: Preset, negatives: str) -> Path:
+        """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives, if any)."""
+        near, pool = training.near_negatives_meta(preset.train)
+        suffix = f"-near{near}of{pool}" if near and negatives == "in-data+vae" else ""
+        return self.root / preset.variant / f"ebm-{negatives}{suffix}"
 
     def dmo(self, variant: str, train_iters: int) -> Path:
         return self.root / variant / f"dmo-R{train_iters}"
 
 
+#: Held-out episodes evaluated during training (a longer test split is for bin/evaluate).
+HELDOUT_EPISODES = 100
+
+
 def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = True, log=print):
     """Train and held-out datasets of a task at the preset's image size (generated if missing),
-    plus the camera ``(K, image_size)`` they were rendered with."""
+    each with its motions' nearest training motions (``dmo_jax.neighbours``, computed once and
+    stored in the split), plus the camera ``(K, image_size)`` they were rendered with. The
+    held-out set is the test split's first :data:`HELDOUT_EPISODES`."""
     from envs import dataset as ds
     from envs.tasks import get_task
 
@@ -58,7 +68,19 @@ def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = T
             f"{data_root}/{task_name} has {train.meta['image_size']}px images but preset {preset.name!r} "
             f"needs {preset.image_size}px; use another --data directory")
     camera = (np.asarray(train.meta["intrinsics"], np.float32), preset.image_size)
-    return MotionDataset.from_split(train), MotionDataset.from_split(test), camera
+    bank = np.asarray(train.motions, np.float32)
+    near = {split: split_neighbours(ds.split_dir(data_root, task_name, split), np.asarray(s.motions, np.float32), bank,
+                                    *camera, is_bank=split == "train", log=log)
+            for split, s in (("train", train), ("test", test))}
+    held = slice(0, min(len(test), HELDOUT_EPISODES))
+    heldout = MotionDataset(network_image(test.rgb[held], test.depth[held]), np.asarray(test.motions[held], np.float32),
+                            near["test"][held])
+    return MotionDataset(network_image(train.rgb, train.depth), bank, near["train"]), heldout, camera
+
+
+def heldout_rivals(train: MotionDataset, heldout: MotionDataset) -> np.ndarray:
+    """``[N, 63, 101, 11]``: each held-out motion's nearest training motions (``near_top1``)."""
+    return train.motions[heldout.neighbours[:, :training.HELDOUT_NEAR_NEGATIVES]]
 
 
 def _half(spec: training.ModelSpec) -> int:
@@ -77,8 +99,8 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     t0 = time.perf_counter()
     vae_spec = training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1)))
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
-    ebm_spec = training.ebm_spec(preset, negatives, heldout)
-    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset.variant, negatives), extra=vae_params,
+    ebm_spec = training.ebm_spec(preset, negatives, heldout, heldout_near=heldout_rivals(train, heldout))
+    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
                                      seed=seed, eval_every=_half(ebm_spec))
     dmo_spec = training.dmo_spec(preset, r, heldout, camera)
     _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset.variant, r), extra=vae_params, seed=seed,
@@ -96,7 +118,7 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
 
     methods = (method,) if isinstance(method, str) else tuple(method)
     paths = RunPaths.of(workdir, task_name, preset)
-    ebm, _ = training.load_params(paths.ebm(preset.variant, negatives), training.ebm_spec(preset, negatives))
+    ebm, _ = training.load_params(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
     dmo = vae = None
     if "dmo" in methods:
         r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters

@@ -68,7 +68,7 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
     data, work = trained
     proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work))
     result = json.loads(proc.stdout[: proc.stdout.rindex("}") + 1])
-    metrics = workflow.RunPaths.of(work, TASK, TINY).ebm("concat", "in-data+vae") / "metrics.jsonl"
+    metrics = workflow.RunPaths.of(work, TASK, TINY).ebm(TINY, "in-data+vae") / "metrics.jsonl"
     top1 = [r["heldout_top1"] for r in map(json.loads, metrics.read_text().splitlines()) if "heldout_top1" in r]
     assert result["episodes"] == 4 and result["top1"] == pytest.approx(top1[-1])
     assert len(result["misses"]) == round((1 - result["top1"]) * 4)

@@ -1,0 +1,145 @@
+"""Bank neighbours and the training recipes built on them: each motion's nearest training motions
+(stored beside the data, rebuilt when it changes), the EBM's near negatives, and both recipes
+from bin/train_all to bin/evaluate on the tiny preset."""
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dmo_jax import losses, neighbours, workflow
+from dmo_jax.config import RECIPES, get_preset
+from dmo_jax.data import MotionDataset
+from dmo_jax.motion import NUM_STEPS, POSE_DIM
+from dmo_jax.vae import VAENet
+from envs import dataset
+from envs.tasks import get_task
+
+from helpers import random_params
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = get_preset("tiny")
+K = np.array([[50.0, 0, 31.5], [0, 50.0, 31.5], [0, 0, 1]], np.float32)
+
+
+def _motions(n, seed=0):
+    """``n`` motions whose poses scatter around a random point per motion (positions differ)."""
+    rng = np.random.default_rng(seed)
+    m = np.zeros((n, NUM_STEPS, POSE_DIM), np.float32)
+    m[..., 0:2] = rng.uniform(-0.8, 0.8, (n, 1, 2)) + 0.05 * rng.standard_normal((n, NUM_STEPS, 2))
+    m[..., 2] = rng.uniform(1.2, 1.8, (n, 1))
+    m[..., 3], m[..., 7] = 1.0, 1.0  # identity rotation
+    m[..., 10] = np.linspace(0, 1, NUM_STEPS)
+    return m
+
+
+def _distances(query, bank):
+    q, b = neighbours.positions(query, K, 64), neighbours.positions(bank, K, 64)
+    return np.linalg.norm(q[:, None] - b[None], axis=-1).mean(axis=-1)
+
+
+def test_neighbours_exclude_the_motion_itself_and_come_sorted(tmp_path):
+    bank = _motions(40)
+    index = neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=10, is_bank=True)
+    assert index.shape == (40, 10) and index.dtype == np.int32
+    assert not (index == np.arange(40)[:, None]).any()
+    d = _distances(bank, bank)
+    picked = np.take_along_axis(d, index, axis=1)
+    assert (np.diff(picked, axis=1) >= 0).all()
+    np.fill_diagonal(d, np.inf)
+    np.testing.assert_allclose(picked, np.sort(d, axis=1)[:, :10])  # no closer motion was left out
+    # held-out motions: their nearest among the training motions
+    query = _motions(5, seed=1)
+    (tmp_path / "test").mkdir()
+    held = neighbours.split_neighbours(tmp_path / "test", query, bank, K, 64, k=10)
+    np.testing.assert_allclose(np.take_along_axis(_distances(query, bank), held, axis=1),
+                               np.sort(_distances(query, bank), axis=1)[:, :10])
+
+
+def test_neighbours_are_stored_reused_and_rebuilt_when_the_data_changes(tmp_path):
+    bank = _motions(30)
+    first = neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=8, is_bank=True)
+    stored = (tmp_path / neighbours.INDEX_FILE).read_bytes()
+    calls = []
+    again = neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=8, is_bank=True, log=calls.append)
+    assert calls == [] and np.array_equal(first, again)  # read back, not recomputed
+    other = bank.copy()
+    other[0, :, 0:2] = other[1, :, 0:2]  # motion 0 moves onto motion 1
+    changed = neighbours.split_neighbours(tmp_path, other, other, K, 64, k=8, is_bank=True, log=calls.append)
+    assert len(calls) == 1 and changed[0, 0] == 1 and changed[1, 0] == 0
+    # the same data gives the same bytes, and a torn fingerprint only costs a rebuild
+    neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=8, is_bank=True)
+    assert (tmp_path / neighbours.INDEX_FILE).read_bytes() == stored
+    (tmp_path / neighbours.INFO_FILE).write_text('{"k": 8, "fing')
+    np.testing.assert_array_equal(neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=8, is_bank=True), first)
+    assert json.loads((tmp_path / neighbours.INFO_FILE).read_text())["k"] == 8
+
+
+def test_near_negatives_lie_closer_to_the_positive_than_random_ones(tmp_path):
+    bank = _motions(64)
+    index = neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=16, is_bank=True)
+    data = MotionDataset(np.zeros((64, 32, 32, 4), np.float32), bank, index)
+    batch = data.batch(seed=0, step=3, size=16, near=8)
+    assert batch["near"].shape == (16, 8, NUM_STEPS, POSE_DIM)
+    vae = VAENet.from_preset(TINY)
+    cfg = dataclasses.replace(TINY.train, ebm_gt_negatives=6, ebm_near_negatives=3, near_pool=8)
+    cands = np.asarray(losses.ebm_candidates(vae, random_params(vae), jnp.asarray(batch["motions"]),
+                                             jax.random.key(0), cfg, near=jnp.asarray(batch["near"])))
+    assert cands.shape == (16, 1 + 6 + TINY.train.ebm_vae_negatives, NUM_STEPS, POSE_DIM)
+    dist = np.stack([_distances(c[:1], c[1:7])[0] for c in cands])  # [16, 6]: near ones first, then random
+    for row, c in zip(range(16), cands):  # the near ones come from the positive's 8 nearest, distinct
+        picked = [int(np.flatnonzero((bank == m).all(axis=(1, 2)))[0]) for m in c[1:4]]
+        positive = int(np.flatnonzero((bank == c[0]).all(axis=(1, 2)))[0])
+        assert len(set(picked)) == 3 and set(picked) <= set(index[positive, :8].tolist())
+    assert dist[:, :3].mean() < 0.5 * dist[:, 3:].mean()
+    # without near negatives the same keys give the paper's negatives
+    paper = losses.ebm_candidates(vae, random_params(vae), jnp.asarray(batch["motions"]), jax.random.key(0),
+                                  dataclasses.replace(cfg, ebm_near_negatives=0))
+    assert paper.shape == cands.shape
+
+
+def test_recipe_settings_and_their_errors():
+    assert RECIPES == ("paper", "bank")
+    cpu = get_preset("cpu", recipe="bank")
+    assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool) == ("bank", 6, 16)
+    assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
+    assert get_preset("cpu", recipe="paper").train.ebm_near_negatives == 0
+    with pytest.raises(ValueError, match="unknown recipe 'ibc'"):
+        get_preset("cpu", recipe="ibc")
+    with pytest.raises(ValueError, match="exceeds ebm_gt_negatives"):
+        get_preset("cpu").with_overrides(["ebm_near_negatives=12"])
+    with pytest.raises(ValueError, match="exceeds near_pool"):
+        get_preset("cpu").with_overrides(["ebm_near_negatives=6", "near_pool=4"])
+
+
+def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
+    data, work = tmp_path / "data", tmp_path / "runs"
+    task = get_task("reach_target", TINY.image_size)
+    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
+    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
+    rows = {}
+    for recipe in RECIPES:
+        preset = get_preset("tiny", recipe=recipe)
+        summary = workflow.train_task("reach_target", preset, data, work, log=lambda m: None)
+        assert 0.0 <= summary["ebm"]["heldout_near_top1"] <= 1.0
+        out = tmp_path / f"{recipe}.json"
+        proc = subprocess.run([sys.executable, "bin/evaluate", "--task", "reach_target", "--method", "sort,dmo",
+                               "--preset", "tiny", "--recipe", recipe, "--data", str(data), "--workdir", str(work),
+                               "--episodes", "4", "--n", "2", "--backend", "mujoco", "--json", str(out)],
+                              cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        payload = json.loads(out.read_text())
+        assert payload["settings"]["recipe"] == recipe
+        rows[recipe] = [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]]
+        dmo = next(r for r in payload["results"] if r["method"] == "dmo")
+        assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
+    assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
+    # one VAE and one DMO (they do not depend on the negatives), an EBM per recipe
+    ebms = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
+    assert ebms == ["dmo-R2", "ebm-in-data+vae", "ebm-in-data+vae-near2of16"]
+    assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()

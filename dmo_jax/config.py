@@ -11,6 +11,7 @@ Variants (paper Table 2) are chosen with ``preset.with_variant(name)`` or
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 #: Architecture variants of paper Table 2.
@@ -67,6 +68,11 @@ class HeadConfig:
 
     def __post_init__(self):
         check_variant(self.variant)
+        for name in ("pose_z_offset", "pose_z_scale", "depth_cue_range"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"HeadConfig: {name} must be a finite number, got {getattr(self, name)}")
+        if self.pose_z_scale == 0:
+            raise ValueError("HeadConfig: pose_z_scale must be non-zero (the pose MLP would not see depth)")
         if self.depth_cue and self.variant != "concat":
             raise ValueError(f"HeadConfig: depth_cue needs the concat variant, not {self.variant!r}")
         if self.depth_cue_range < 0 or (self.depth_cue_range and not self.depth_cue):
@@ -140,6 +146,15 @@ class TrainConfig:
     num_candidates: int = 8  # n kept by the EBM at inference
 
     def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{f.name} must be a finite number, got {value}")
+        for name in ("lr", "depth_negative_shift"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not 0 < self.lr_decay <= 1:
+            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
         if self.dmo_inputs not in DMO_INPUTS:
             raise ValueError(f"dmo_inputs={self.dmo_inputs!r}: expected one of {', '.join(DMO_INPUTS)}")
         if self.ebm_near_negatives > self.ebm_gt_negatives:

@@ -220,7 +220,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         except (DatasetError, training.TrainingError, ValueError) as err:
             _fail(str(err))
         for result in found:
-            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps, "recipe": preset.recipe})
+            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps, "recipe": preset.recipe,
+                                       "dmo_inputs": preset.train.dmo_inputs})
             by_row.setdefault(label, {})[name] = result
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
                   f"(execution {result['seconds']:.1f} s"
@@ -245,7 +246,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             "task": names[0] if len(names) == 1 else names, "method": method, "episodes": episodes,
             "successes": successes, "success_rate": successes / episodes,
             "settings": {"method": method, "preset": preset.name, "variant": preset.variant,
-                         "recipe": preset.recipe, "negatives": args.negatives,
+                         "recipe": preset.recipe, "dmo_inputs": preset.train.dmo_inputs, "negatives": args.negatives,
                          "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
                          "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set},

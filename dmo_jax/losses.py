@@ -136,10 +136,19 @@ def ebm_eval(ebm, params, images, candidates, images_per_chunk: int = 4):
 
 
 # --------------------------------------------------------------------------- DMO
-def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig) -> jnp.ndarray:
+def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig, near=None) -> jnp.ndarray:
     """The DMO's perturbed inputs ``[B, 101, 11]`` for clean ``motions [B, 101, 11]``: VAE samples at
     ``cfg.dmo_input_sigma``, or with ``cfg.dmo_inputs == "offset"`` the motions moved by the
-    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1])."""
+    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1]), or
+    with ``"near"`` the motions moved a uniform fraction u ~ U(0, 1) of the way to one of their
+    nearest other training motions ``near [B, P, 101, 11]``, picked uniformly."""
+    if cfg.dmo_inputs == "near":
+        if near is None:
+            raise ValueError("dmo_inputs='near' needs each motion's nearest training motions (near [B, P, 101, 11])")
+        k_pick, k_frac = jax.random.split(key)
+        other = near[jnp.arange(motions.shape[0]), jax.random.randint(k_pick, (motions.shape[0],), 0, near.shape[1])]
+        frac = jax.random.uniform(k_frac, (motions.shape[0], 1, 1))
+        return jax.lax.stop_gradient(motions + frac * (other - motions))
     samples = vae.sample_around(vae_params, motions, key, cfg.dmo_input_sigma)
     if cfg.dmo_inputs == "offset":
         samples = motions + samples - vae.decode(vae_params, vae.encode(vae_params, motions)[0])
@@ -170,6 +179,17 @@ def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: f
     outs = jax.vmap(lambda f, m, k: dmo_unroll(dmo, params, f, m[None], steps, True, k)[:, 0])(feature, inputs, keys)
     per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight, z_weight), in_axes=1)(outs)
     return jnp.mean(per_step), {"first_step": per_step[0], "last_step": per_step[-1]}
+
+
+def dmo_position_change(dmo, params, images, starts, targets, steps: int, intrinsics, image_size: int):
+    """The DMO on ``starts [B, k, 101, 11]`` (e.g. each image's nearest bank motions) against
+    ``targets [B, 101, 11]``: mean 3-D position error before and after ``steps`` refinements
+    (``near_position_before`` / ``near_position_after``, metres)."""
+    feature = dmo.encode(params, images)
+    outs = jax.vmap(lambda f, m: dmo_unroll(dmo, params, f, m, steps)[-1])(feature, starts)
+    error = jax.vmap(jax.vmap(lambda m, t: position_error(m, t, intrinsics, image_size), (0, None)))
+    return {"near_position_before": jnp.mean(error(starts, targets)),
+            "near_position_after": jnp.mean(error(outs, targets))}
 
 
 def position_error(pred, target, intrinsics, image_size: int) -> jnp.ndarray:

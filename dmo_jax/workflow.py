@@ -4,7 +4,7 @@ Work directory layout (``WORKDIR/<task>/<preset>/``)::
 
     vae/                       checkpoints/, metrics.jsonl   (shared by every variant)
     <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl   (-near<k>of<pool> with near negatives)
-    <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl
+    <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl   (-<inputs> unless the paper's)
 
 A model whose checkpoint has reached its step count is loaded, not retrained; an
 interrupted one resumes from its last checkpoint.
@@ -40,8 +40,11 @@ class RunPaths:
         suffix = f"-near{near}of{pool}" if near and negatives == "in-data+vae" else ""
         return self.root / preset.variant / f"ebm-{negatives}{suffix}"
 
-    def dmo(self, variant: str, train_iters: int) -> Path:
-        return self.root / variant / f"dmo-R{train_iters}"
+    def dmo(self, preset: Preset, train_iters: int) -> Path:
+        """The DMO of ``preset``'s variant trained with ``train_iters`` unrolled steps (and its inputs
+        when they are not the paper's)."""
+        inputs = preset.train.dmo_inputs
+        return self.root / preset.variant / (f"dmo-R{train_iters}" + ("" if inputs == "decoded" else f"-{inputs}"))
 
 
 #: Held-out episodes evaluated during training (a longer test split is for bin/evaluate).
@@ -102,8 +105,8 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     ebm_spec = training.ebm_spec(preset, negatives, heldout, heldout_near=heldout_rivals(train, heldout))
     _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
                                      seed=seed, eval_every=_half(ebm_spec))
-    dmo_spec = training.dmo_spec(preset, r, heldout, camera)
-    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset.variant, r), extra=vae_params, seed=seed,
+    dmo_spec = training.dmo_spec(preset, r, heldout, camera, heldout_near=heldout_rivals(train, heldout))
+    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed,
                                      eval_every=_half(dmo_spec))
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
     return summary
@@ -122,7 +125,7 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     dmo = vae = None
     if "dmo" in methods:
         r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
-        dmo, _ = training.load_params(paths.dmo(preset.variant, r), training.dmo_spec(preset, r))
+        dmo, _ = training.load_params(paths.dmo(preset, r), training.dmo_spec(preset, r))
     if {"vaebm-l", "vaebm-s"} & set(methods):
         vae, _ = training.load_params(paths.vae(), training.vae_spec(preset))
     return Models(ebm, dmo, vae)

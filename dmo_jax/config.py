@@ -103,7 +103,7 @@ class VAEConfig:
         return self.d_model
 
 
-DMO_INPUTS = ("decoded", "offset", "near")
+DMO_INPUTS = ("decoded", "offset")
 
 
 @dataclass(frozen=True)
@@ -139,8 +139,7 @@ class TrainConfig:
     dmo_input_sigma: float = 1.0  # DMO input z = mu + 1 sigma eps
     # "decoded": the DMO's inputs are the VAE's decodings of z (the paper's). "offset": the clean
     # motion plus (decoding of z - decoding of mu), the same perturbation without the VAE's
-    # reconstruction error, which bank motions do not have. "near": the clean motion moved a
-    # random fraction of the way to one of its near_pool nearest other training motions.
+    # reconstruction error, which bank motions do not have.
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
     dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1

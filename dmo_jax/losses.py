@@ -136,19 +136,10 @@ def ebm_eval(ebm, params, images, candidates, images_per_chunk: int = 4):
 
 
 # --------------------------------------------------------------------------- DMO
-def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig, near=None) -> jnp.ndarray:
+def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig) -> jnp.ndarray:
     """The DMO's perturbed inputs ``[B, 101, 11]`` for clean ``motions [B, 101, 11]``: VAE samples at
     ``cfg.dmo_input_sigma``, or with ``cfg.dmo_inputs == "offset"`` the motions moved by the
-    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1]), or
-    with ``"near"`` the motions moved a uniform fraction u ~ U(0, 1) of the way to one of their
-    nearest other training motions ``near [B, P, 101, 11]``, picked uniformly."""
-    if cfg.dmo_inputs == "near":
-        if near is None:
-            raise ValueError("dmo_inputs='near' needs each motion's nearest training motions (near [B, P, 101, 11])")
-        k_pick, k_frac = jax.random.split(key)
-        other = near[jnp.arange(motions.shape[0]), jax.random.randint(k_pick, (motions.shape[0],), 0, near.shape[1])]
-        frac = jax.random.uniform(k_frac, (motions.shape[0], 1, 1))
-        return jax.lax.stop_gradient(motions + frac * (other - motions))
+    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1])."""
     samples = vae.sample_around(vae_params, motions, key, cfg.dmo_input_sigma)
     if cfg.dmo_inputs == "offset":
         samples = motions + samples - vae.decode(vae_params, vae.encode(vae_params, motions)[0])

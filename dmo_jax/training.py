@@ -206,26 +206,24 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
              heldout_camera: tuple | None = None, augment: bool = True,
              heldout_near: np.ndarray | None = None) -> ModelSpec:
     """``extra`` = the trained VAE's parameters (they make the perturbed inputs). The held-out
-    errors are on VAE samples of the held-out motions (the paper's inputs, whatever the DMO
-    trains on) and, given ``heldout_near [N, >= 8, 101, 11]`` (each held-out motion's nearest
-    training motions), on its 8 nearest bank motions (``near_position_before`` / ``_after``)."""
+    errors are on the DMO's kind of inputs made from the held-out motions and, given
+    ``heldout_near [N, >= 8, 101, 11]`` (each held-out motion's nearest training motions), on
+    its 8 nearest bank motions, what prediction feeds it (``near_position_before`` / ``_after``)."""
     net, vae, cfg = DMONet(preset), VAENet.from_preset(preset), preset.train
     r = cfg.dmo_train_iters if train_iters is None else train_iters
     if r < 1:
         raise ValueError(f"the DMO needs at least one training iteration, got {r}")
-    near = cfg.near_pool if cfg.dmo_inputs == "near" else 0
-    heldout_cfg = dataclasses.replace(cfg, dmo_inputs="decoded") if near else cfg
 
     def loss_fn(params, batch, key, vae_params, step):
         k_in, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
-        inputs = losses.dmo_inputs(vae, vae_params, batch["motions"], k_in, cfg, batch.get("near"))
+        inputs = losses.dmo_inputs(vae, vae_params, batch["motions"], k_in, cfg)
         return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight,
                                cfg.dmo_z_weight)
 
     @jax.jit  # compiled once per run, the VAE's inputs included
     def evaluate(params, vae_params, images, motions, starts):
-        inputs = losses.dmo_inputs(vae, vae_params, motions, jax.random.key(4321), heldout_cfg)
+        inputs = losses.dmo_inputs(vae, vae_params, motions, jax.random.key(4321), cfg)
         metrics = losses.dmo_eval(net, params, images, inputs, motions, cfg.dmo_infer_iters, *heldout_camera, r)
         if starts is not None:
             metrics.update(losses.dmo_position_change(net, params, images, starts, motions, cfg.dmo_infer_iters,
@@ -239,7 +237,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
                      cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "train_iters": r, "inputs": cfg.dmo_inputs}, cfg, near)
+                                     "train_iters": r, "inputs": cfg.dmo_inputs}, cfg)
 
 
 # --------------------------------------------------------------------------- the loop

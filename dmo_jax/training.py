@@ -194,7 +194,9 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg)},
+                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg),
+                                     "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives,
+                                                         cfg.ebm_depth_negatives]},
                      cfg, near)
 
 
@@ -279,9 +281,14 @@ _META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0
                 "inputs": "decoded"}
 
 
+#: Meta fields older checkpoints lack with no one value they were made with (their preset's): not checked there.
+_META_UNKNOWN_BEFORE = ("negative_counts",)
+
+
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
     saved = {**_META_BEFORE, **saved}
-    diff = {k: (saved.get(k), v) for k, v in expected.items() if saved.get(k) != v}
+    diff = {k: (saved.get(k), v) for k, v in expected.items()
+            if saved.get(k) != v and not (k in _META_UNKNOWN_BEFORE and k not in saved)}
     if diff:
         detail = ", ".join(f"{k}: checkpoint has {a!r}, expected {b!r}" for k, (a, b) in diff.items())
         raise TrainingError(f"checkpoint at {path} was made with other settings ({detail}); "

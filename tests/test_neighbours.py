@@ -127,6 +127,7 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
         preset = get_preset("tiny", recipe=recipe)
         summary = workflow.train_task("reach_target", preset, data, work, log=lambda m: None)
         assert 0.0 <= summary["ebm"]["heldout_near_top1"] <= 1.0
+        assert summary["dmo"]["heldout_near_position_before"] > 0 and summary["dmo"]["heldout_near_position_after"] > 0
         out = tmp_path / f"{recipe}.json"
         proc = subprocess.run([sys.executable, "bin/evaluate", "--task", "reach_target", "--method", "sort,dmo",
                                "--preset", "tiny", "--recipe", recipe, "--data", str(data), "--workdir", str(work),

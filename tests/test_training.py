@@ -192,6 +192,13 @@ def test_checkpoint_refuses_another_pose_depth_input(task_data, vae_params, tmp_
     scaled = _fast(TINY, 1).with_overrides(["pose_z_scale=10"])
     with pytest.raises(training.TrainingError, match=r"pose_z: checkpoint has \[0.0, 1.0\], expected \[0.0, 10.0\]"):
         training.load_params(tmp_path, training.ebm_spec(scaled))
+    # so do other negatives: an EBM trained against 3 in-data negatives is not the one asked for with 2
+    fewer = _fast(TINY, 1).with_overrides(["ebm_gt_negatives=2"])
+    with pytest.raises(training.TrainingError, match=r"negative_counts: checkpoint has \[3, 4, 0\], expected \[2, 4, 0\]"):
+        training.load_params(tmp_path, training.ebm_spec(fewer))
+    # a checkpoint written before the counts were recorded loads under any
+    saved = {"model": "ebm", "negatives": "in-data+vae"}
+    training._check_meta(saved, {"model": "ebm", "negative_counts": [2, 4, 0]}, tmp_path)
 
 
 def test_more_steps_continue_a_finished_run(task_data, tmp_path):

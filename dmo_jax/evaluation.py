@@ -130,7 +130,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     train = load_split(data_root, task_name, "train")
     bank = np.asarray(train.motions, np.float32)
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters)
-    episodes = min(episodes, len(test))
+    evaluation.check_episodes(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)

@@ -85,6 +85,15 @@ def world_method_candidates(method: str, test: Split, train: Split | None, episo
     raise ValueError(f"unknown method {method!r}; expected one of {WORLD_METHODS}")
 
 
+def check_episodes(episodes: int, test: Split, name: str, data_root) -> None:
+    """Raise ``DatasetError`` when ``episodes`` asks for more scenes than the test split holds."""
+    from envs.dataset import DatasetError
+
+    if episodes > len(test):
+        raise DatasetError(f"{episodes} episodes asked for, but the test split of {name} in {data_root} holds "
+                           f"{len(test)}; ask for at most {len(test)} or generate more (bin/generate_data --test N)")
+
+
 def evaluate_world_method(name: str, method: str, episodes: int, data_root, backend: str = "auto") -> dict:
     """Evaluate ``expert``, ``blind`` or ``nearest`` on the first ``episodes`` test scenes of task ``name``
     (see :func:`run_episodes` for the result); raises ``envs.dataset.DatasetError`` if the
@@ -93,7 +102,7 @@ def evaluate_world_method(name: str, method: str, episodes: int, data_root, back
 
     test = load_split(data_root, name, "test")
     train = load_split(data_root, name, "train") if method != "expert" else None
-    episodes = min(episodes, len(test))
+    check_episodes(episodes, test, name, data_root)
     return {"method": method, **run_episodes(name, test, world_method_candidates(method, test, train, episodes),
                                              backend)}
 

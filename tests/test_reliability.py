@@ -240,6 +240,8 @@ COMMAND_CASES = [
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{wrong_dtype}"],
           "motions.npy is float64[2, 101, 11], expected float32[2, 101, 11]"),
     _case("evaluate", EV + ["--data", "{size64}", "--workdir", "{runs_good}"], "has 64px images but preset 'tiny' needs 32px"),
+    _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{good}", "--episodes", "5"],
+          "5 episodes asked for, but the test split of reach_target in"),
     _case("evaluate", EV + ["--data", "{good}", "--workdir", "{runs_empty}"], "no checkpoint in"),
     _case("evaluate", EV + ["--data", "{good}", "--workdir", "{missing}"], "train this model first"),
     _case("evaluate", EV + ["--data", "{good}", "--workdir", "{runs_cpu}"], "preset: checkpoint has 'cpu', expected 'tiny'"),

@@ -88,6 +88,14 @@ def augment_batch(images: jnp.ndarray, key: jax.Array) -> jnp.ndarray:
 
 
 # --------------------------------------------------------------------------- batches
+def motions_fingerprint(motions: np.ndarray) -> str:
+    """A short hash of training ``motions [N, 101, 11]`` (as float32): which data a network learnt from."""
+    import hashlib
+
+    return hashlib.sha256(np.ascontiguousarray(motions, np.float32).tobytes()).hexdigest()[:16]
+
+
+
 @dataclasses.dataclass(frozen=True)
 class MotionDataset:
     """A task split in memory: ``images [N, S, S, 4]`` float32, ``motions [N, 101, 11]`` float32,
@@ -128,6 +136,7 @@ class MotionDataset:
         """Summary saved beside checkpoints (what the model was trained on)."""
         m = self.motions
         return {
+            "fingerprint": motions_fingerprint(m),
             "episodes": len(self),
             "image_size": int(self.images.shape[1]),
             "motion_mean": m.mean(axis=(0, 1)).round(5).tolist(),

@@ -129,7 +129,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
                            f"{preset.name!r} needs {preset.image_size}px; use another --data directory")
     train = load_split(data_root, task_name, "train")
     bank = np.asarray(train.motions, np.float32)
-    models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters)
+    models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
     evaluation.check_episodes(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
@@ -166,12 +166,10 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
 
     from . import losses, training
     from .networks import EBMNet
-    from .workflow import RunPaths, load_task_data
+    from .workflow import load_models, load_task_data
 
-    _, test, (intrinsics, size) = load_task_data(task_name, data_root, preset, generate=False)
-    paths = RunPaths.of(workdir, task_name, preset)
-    ebm_params, _ = training.load_params(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
-    vae_params, _ = training.load_params(paths.vae(), training.vae_spec(preset))
+    train, test, (intrinsics, size) = load_task_data(task_name, data_root, preset, generate=False)
+    ebm_params, _, vae_params = load_models(workdir, task_name, preset, "vaebm-l", negatives, bank=train.motions)
     ebm = EBMNet(preset)
     cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)
 

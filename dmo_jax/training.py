@@ -282,7 +282,7 @@ _META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0
 
 
 #: Meta fields older checkpoints lack with no one value they were made with (their preset's): not checked there.
-_META_UNKNOWN_BEFORE = ("negative_counts",)
+_META_UNKNOWN_BEFORE = ("negative_counts", "task")
 
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
@@ -307,9 +307,19 @@ def _restore(mngr: ocp.CheckpointManager, step: int, args, path: Path):
                             "directory to fall back to the previous checkpoint, or retrain") from err
 
 
-def load_params(workdir: str | Path, spec: ModelSpec):
+def _check_data(saved: dict, fingerprint: str | None, path: Path) -> None:
+    """Raise unless the checkpoint's training data (``saved["dataset"]["fingerprint"]``, absent in
+    checkpoints written before it was recorded) is the data of ``fingerprint`` (None: not checked)."""
+    had = (saved.get("dataset") or {}).get("fingerprint")
+    if fingerprint is not None and had is not None and had != fingerprint:
+        raise TrainingError(f"checkpoint at {path} was trained on other data (training motions {had}, these are "
+                            f"{fingerprint}); use another --workdir or the data it was trained on")
+
+
+def load_params(workdir: str | Path, spec: ModelSpec, data_fingerprint: str | None = None):
     """Parameters and metadata of the latest checkpoint of the run in ``workdir`` (the directory
-    given to :func:`fit`), checked against ``spec.meta``."""
+    given to :func:`fit`), checked against ``spec.meta`` and, when given, against the
+    fingerprint of the training motions (``data.motions_fingerprint``) it must have learnt from."""
     path = Path(workdir) / "checkpoints"
     if not path.is_dir():
         raise TrainingError(f"no checkpoint in {path}: train this model first (bin/train_all)")
@@ -319,6 +329,7 @@ def load_params(workdir: str | Path, spec: ModelSpec):
         raise TrainingError(f"no checkpoint in {path}")
     restored = _restore(mngr, step, ocp.args.Composite(meta=ocp.args.JsonRestore()), path)
     _check_meta(restored["meta"], spec.meta, path)
+    _check_data(restored["meta"], data_fingerprint, path)
     abstract = jax.eval_shape(spec.init_fn, jax.random.key(0))
     state = _restore(mngr, step, ocp.args.Composite(
         state=ocp.args.PyTreeRestore(item={"params": abstract},
@@ -404,6 +415,7 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
         saved_meta = _restore(mngr, latest, ocp.args.Composite(meta=ocp.args.JsonRestore()), workdir)["meta"]
         # More steps continue a run: the learning rate, batches and keys depend on the step only.
         _check_meta(saved_meta, {k: v for k, v in meta.items() if k not in ("dataset", "steps")}, workdir)
+        _check_data(saved_meta, meta["dataset"]["fingerprint"], workdir)
         if latest > spec.steps:
             raise TrainingError(f"checkpoint at {workdir} is at step {latest}, beyond the {spec.steps} steps "
                                 f"asked for; use another --workdir or at least {latest} steps")

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import training
 from .config import Preset
-from .data import MotionDataset, network_image
+from .data import MotionDataset, motions_fingerprint, network_image
 from .neighbours import split_neighbours
 
 
@@ -100,32 +100,44 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
     summary = {}
     t0 = time.perf_counter()
-    vae_spec = training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1)))
+    vae_spec = _of_task(training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1))), task_name)
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
-    ebm_spec = training.ebm_spec(preset, negatives, heldout, heldout_near=heldout_rivals(train, heldout))
+    ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=heldout_rivals(train, heldout)),
+                        task_name)
     _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
                                      seed=seed, eval_every=_half(ebm_spec))
-    dmo_spec = training.dmo_spec(preset, r, heldout, camera, heldout_near=heldout_rivals(train, heldout))
+    dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=heldout_rivals(train, heldout)),
+                        task_name)
     _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed,
                                      eval_every=_half(dmo_spec))
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
     return summary
 
 
+def _of_task(spec: training.ModelSpec, task_name: str) -> training.ModelSpec:
+    """``spec`` whose checkpoints also record, and must match, the task."""
+    return dataclasses.replace(spec, meta={**spec.meta, "task": task_name})
+
+
 def load_models(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
-                dmo_train_iters: int | None = None):
+                dmo_train_iters: int | None = None, bank: np.ndarray | None = None):
     """The trained networks ``method`` (a method name or a list of them) needs
     (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
-    ``training.TrainingError`` naming what is missing or mismatched."""
+    ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
+    preset, other settings, or (given the training motions ``bank [N, 101, 11]``) other data."""
     from .inference import Models
 
     methods = (method,) if isinstance(method, str) else tuple(method)
+    if not isinstance(preset, Preset):
+        raise ValueError(f"preset must be a dmo_jax.config.Preset (dmo_jax.get_preset(name)), got {preset!r}")
     paths = RunPaths.of(workdir, task_name, preset)
-    ebm, _ = training.load_params(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
+    data = None if bank is None else motions_fingerprint(bank)
+    load = lambda path, spec: training.load_params(path, _of_task(spec, task_name), data)[0]
+    ebm = load(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
     dmo = vae = None
     if "dmo" in methods:
         r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
-        dmo, _ = training.load_params(paths.dmo(preset, r), training.dmo_spec(preset, r))
+        dmo = load(paths.dmo(preset, r), training.dmo_spec(preset, r))
     if {"vaebm-l", "vaebm-s"} & set(methods):
-        vae, _ = training.load_params(paths.vae(), training.vae_spec(preset))
+        vae = load(paths.vae(), training.vae_spec(preset))
     return Models(ebm, dmo, vae)

@@ -278,3 +278,18 @@ def test_a_second_writer_of_a_run_fails_naming_the_first(task_data, tmp_path):
     assert not (tmp_path / "metrics.jsonl").exists()
     _, summary = training.fit(spec, task_data[0], tmp_path, verbose=False)  # free again once the first is done
     assert summary["steps"] == 2
+
+
+def test_a_checkpoint_knows_its_task_and_data(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 2))
+    training.fit(spec, task_data[0], tmp_path, verbose=False)
+    other = data_lib.MotionDataset(task_data[0].images, task_data[0].motions[::-1].copy())
+    with pytest.raises(training.TrainingError, match="was trained on other data"):
+        training.fit(spec, other, tmp_path, verbose=False)  # a finished run reused on other data
+    with pytest.raises(training.TrainingError, match="was trained on other data"):
+        training.load_params(tmp_path, spec, data_lib.motions_fingerprint(other.motions))
+    training.load_params(tmp_path, spec, data_lib.motions_fingerprint(task_data[0].motions))
+    of_task = lambda task: dataclasses.replace(spec, meta={**spec.meta, "task": task})
+    training.fit(of_task("close_box"), task_data[0], tmp_path / "cb", verbose=False)
+    with pytest.raises(training.TrainingError, match="task: checkpoint has 'close_box', expected 'reach_target'"):
+        training.load_params(tmp_path / "cb", of_task("reach_target"))

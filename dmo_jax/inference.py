@@ -117,6 +117,8 @@ def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, 
     if len(image_shape) not in (3, 4) or tuple(image_shape[-3:]) != (s, s, 4):
         raise ValueError(f"image must be [{s}, {s}, 4] or [B, {s}, {s}, 4] for preset {preset.name!r}, "
                          f"got {tuple(image_shape)}")
+    if len(image_shape) == 4 and image_shape[0] < 1:
+        raise ValueError(f"the image batch is empty (shape {tuple(image_shape)}); expected at least one image")
     if len(bank_shape) != 3 or tuple(bank_shape[1:]) != (NUM_STEPS, POSE_DIM):
         raise ValueError(f"bank must be [N, {NUM_STEPS}, {POSE_DIM}] motions, got {tuple(bank_shape)}")
     if bank_shape[0] < 1:
@@ -373,12 +375,15 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         preset, image not ``[S, S, 4]`` / ``[B, S, S, 4]`` floating-point in [0, 1], bank not
         ``[N, 101, 11]`` floating-point, NaN or inf in image or bank, n outside [1, N],
         R < 0, a key that is not one PRNG key, parameters missing or of another preset or
-        variant. Inside the caller's ``jax.jit`` the arrays are tracers: shapes and dtypes
-        are still checked, values (NaN, range) are not.
+        variant, an empty image batch; and non-finite energies or motions in the result
+        (NaN or inf parameters, or motions so large the networks overflow; the check reads
+        the result on the host, 0.02 ms for 10 images on 2 CPU cores). Inside the caller's
+        ``jax.jit`` the arrays are tracers: shapes and dtypes are still checked, values (NaN,
+        range, the result) are not.
     """
     preset, image, bank, key, chunk = _checked_call(models, preset, method, image, bank, key, n, R, chunk)
-    return _predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
-                        R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
+    return _finite(_predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
+                                R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings))
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
@@ -393,7 +398,7 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     ``predict(models, image, bank, key, ...)``. Raises ``ValueError`` as :func:`predict` does.
     """
     preset, image, bank, _, chunk = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk)
-    return _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
+    return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk))
 
 
 def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: jax.Array, *, preset: Preset,
@@ -417,8 +422,25 @@ def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: ja
     flat = motions.reshape((-1,) + shape[-2:])
     preset, image, _, key, chunk = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk,
                                                  "start")
-    return _refine_jit(models, image, ranking._replace(motions=motions), key, preset=preset, method=method,
-                       R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings)
+    return _finite(_refine_jit(models, image, ranking._replace(motions=motions), key, preset=preset, method=method,
+                               R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings))
+
+
+def _finite(result):
+    """``result`` (a :class:`Prediction` or :class:`Ranking`) if its energies and motions are finite;
+    otherwise ``ValueError`` (inside the caller's ``jax.jit`` the values are unknown: not checked).
+    Finite inputs give non-finite outputs when the parameters hold NaN or inf, or when motions of
+    huge magnitude overflow the networks."""
+    energies = result.energies
+    motions = result.candidates if isinstance(result, Prediction) else result.motions
+    if not _is_concrete(energies):
+        return result
+    bad = count_non_finite(energies) + count_non_finite(motions)
+    if bad:
+        raise ValueError(f"the networks produced {bad} NaN or inf value(s) in the energies or motions; check that "
+                         "the parameters are finite (a diverged training run?) and the motions' magnitudes "
+                         "(uv in [-1, 1], z in metres)")
+    return result
 
 
 def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank"):

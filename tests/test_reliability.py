@@ -378,6 +378,12 @@ PREDICT_CASES = [
            "ebm-of-vit-variant"),
     _pcase("Models.dmo do not fit preset 'tiny'",
            _with(models=lambda r: Models(r["models"].ebm, r["models"].ebm), method="dmo"), "dmo-given-ebm"),
+    _pcase("the image batch is empty (shape (0, 32, 32, 4))", _with(image=lambda r: r["image"][None][:0]), "images-none"),
+    _pcase("the networks produced", _with(models=lambda r: Models(jax.tree.map(lambda x: x * jnp.nan, r["models"].ebm))),
+           "ebm-params-nan"),
+    _pcase("the networks produced", _with(models=lambda r: r["models"]._replace(
+        dmo=jax.tree.map(lambda x: x * jnp.nan, r["models"].dmo)), method="dmo"), "dmo-params-nan"),
+    _pcase("the networks produced", _with(bank=lambda r: r["bank"] * 1e30), "bank-huge"),
     _pcase("Models.vae do not fit preset 'tiny'",
            _with(models=lambda r: Models(r["models"].ebm, vae=VAENet(get_preset("cpu").vae).param_shapes()),
                  method="vaebm-s"), "vae-of-cpu-preset"),

@@ -466,7 +466,11 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
         overdue = checkpoint_minutes is not None and time.perf_counter() - last_save >= 60 * checkpoint_minutes
         if done % checkpoint_every == 0 or done == end or overdue:
             last_save = time.perf_counter()
-            mngr.save(done, args=ocp.args.Composite(state=ocp.args.StandardSave(_host(state)),
+            host = _host(state)
+            if not all(np.isfinite(x).all() for x in jax.tree.leaves(host.params)):
+                raise TrainingError(f"{spec.name}: parameters are not finite at step {done}; not saved. Last good "
+                                    f"checkpoint: step {mngr.latest_step()} in {workdir / 'checkpoints'}")
+            mngr.save(done, args=ocp.args.Composite(state=ocp.args.StandardSave(host),
                                                     meta=ocp.args.JsonSave(meta)))
     if pending is not None:
         count_skips(pending, consecutive_skips)

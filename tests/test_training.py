@@ -217,6 +217,15 @@ def test_non_finite_steps_are_skipped_then_stop_the_run(task_data, tmp_path):
         training.fit(bad, task_data[0], tmp_path, max_consecutive_skips=3, verbose=False)
 
 
+def test_non_finite_parameters_are_never_saved_however_short_the_run(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 2))  # fewer steps than the non-finite guard waits for
+    nan_init = dataclasses.replace(spec, init_fn=lambda k: jax.tree.map(lambda x: x * jnp.nan, spec.init_fn(k)))
+    with pytest.raises(training.TrainingError, match="parameters are not finite at step 2; not saved"):
+        training.fit(nan_init, task_data[0], tmp_path, verbose=False)
+    with pytest.raises(training.TrainingError, match="no checkpoint"):
+        training.load_params(tmp_path, spec)
+
+
 def test_augmentation_changes_rgb_only():
     img = jax.random.uniform(jax.random.key(0), (6, 32, 32, 4))
     out = data_lib.augment_batch(img, jax.random.key(1))

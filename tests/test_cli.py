@@ -54,3 +54,17 @@ def test_benchmark_data_section_reports_rate_and_memory(tmp_path):
     assert abs(result["episodes_per_s"] - 3 / result["seconds"]) < 0.01
     assert result["peak_rss_mb"] > 50  # the process holds at least MuJoCo and numpy
     assert "episodes/s" in proc.stdout and "peak resident memory" in proc.stdout
+
+
+def test_commands_started_by_another_python_run_in_the_project_environment():
+    import os
+
+    base = Path(sys.base_prefix) / "bin" / "python3"  # the interpreter the environment was made from
+    env = {**os.environ, "DMO_VENV": sys.prefix}
+    proc = subprocess.run([str(base), "bin/compare", "--help"], cwd=ROOT, capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("usage: compare")
+    for script in ("bin/demo", "bin/setup"):  # --help prints help and does nothing else
+        proc = subprocess.run([script, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0 and proc.stdout.strip() and not proc.stderr

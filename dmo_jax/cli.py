@@ -427,8 +427,9 @@ def compare_main(argv: list[str] | None = None) -> None:
         description="Merge bin/evaluate --json files into one success table and compare one row against every "
         "other scene by scene (the scenes only one of the two solves, with an exact sign test).")
     parser.add_argument("files", nargs="+", help="bin/evaluate --json files of the same networks and test scenes")
-    parser.add_argument("--against", default="dmo n=8 R=1",
-                        help="the row compared with the others, as the table labels it (default 'dmo n=8 R=1')")
+    parser.add_argument("--against",
+                        help="the row compared with the others, as the table labels it (default: the first "
+                        "'dmo n=8 R=1' row, e.g. 'dmo n=8 R=1 [bank]')")
     parser.add_argument("--rows", help="only these rows, comma-separated, in this order (default: every row, in the "
                         "order the files give them), e.g. 'dmo n=8 R=1,langevin n=8,gd n=8'")
     parser.add_argument("--alpha", type=float, default=0.05, help="significance level of the sign test (default 0.05)")
@@ -442,6 +443,7 @@ def compare_main(argv: list[str] | None = None) -> None:
         rows = load_evaluations(args.files)
         if args.rows:
             rows = select_rows(rows, [label.strip() for label in args.rows.split(",") if label.strip()])
-        print(comparison_report(rows, args.against, args.alpha))
+        against = args.against or next((label for label in rows if label.startswith("dmo n=8 R=1")), "dmo n=8 R=1")
+        print(comparison_report(rows, against, args.alpha))
     except ValueError as err:
         _fail(str(err))

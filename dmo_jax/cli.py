@@ -48,13 +48,13 @@ def train_all_main(argv: list[str] | None = None) -> None:
     if args.dmo_steps is not None and args.dmo_steps < 1:
         _fail(f"--dmo-steps must be at least 1, got {args.dmo_steps}")
 
-    from envs.cli import check_output_file, default_data_dir, make_output_dir, non_negative, task_names
+    from envs.cli import check_output_file, default_data_dir, make_output_dir, check_seed, task_names
     from envs.dataset import DatasetError, split_dir
     from dmo_jax import training, workflow
     from dmo_jax.config import get_preset
     from envs.platform import enable_compilation_cache
 
-    non_negative("--seed", args.seed)
+    check_seed("--seed", args.seed)
     enable_compilation_cache()
     try:
         preset = get_preset(args.preset, args.variant, args.recipe).with_overrides(args.set)
@@ -157,7 +157,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-viz", metavar="DIR", help="per episode: trajectories PNG and rollout GIF")
     args = parser.parse_args(argv)
 
-    from envs.cli import check_output_file, check_writable_dir, default_data_dir, non_negative, positive, task_names
+    from envs.cli import check_output_file, check_seed, check_writable_dir, default_data_dir, positive, task_names
 
     methods = [m.strip() for m in args.method.split(",") if m.strip()]
     unknown = [m for m in methods if m not in WORLD_METHODS + METHODS]
@@ -166,7 +166,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
               + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
     learned = [m for m in methods if m not in WORLD_METHODS]
     positive("--episodes", args.episodes)
-    non_negative("--seed", args.seed)
+    check_seed("--seed", args.seed)
     positive("--n", args.n)
     if args.R < 0:
         _fail(f"--R must be >= 0, got {args.R}")

@@ -78,9 +78,13 @@ def image_size(name: str, value: int) -> None:
         fail(f"{name} must be between 1 and {MAX_IMAGE_SIZE} pixels, got {value}")
 
 
-def non_negative(name: str, value: int) -> None:
-    if value < 0:
-        fail(f"{name} must be non-negative, got {value}")
+#: Seeds are 31-bit: JAX keys, NumPy generators and the episodes' seed layout all take them.
+MAX_SEED = 2**31 - 1
+
+
+def check_seed(name: str, value: int) -> None:
+    if not 0 <= value <= MAX_SEED:
+        fail(f"{name} must be an integer in [0, {MAX_SEED}], got {value}")
 
 
 def render_main(argv: list[str] | None = None) -> None:
@@ -93,7 +97,7 @@ def render_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="base seed of the scenes (with --task)")
     args = parser.parse_args(argv)
     image_size("--size", args.size)
-    non_negative("--seed", args.seed)
+    check_seed("--seed", args.seed)
     names = task_names(args.task) if args.task else None
     out = Path(args.out)
     check_output_file(out, "--out")
@@ -228,7 +232,7 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     for name in ("train", "test"):
         positive(f"--{name}", getattr(args, name))
     image_size("--image-size", args.image_size)
-    non_negative("--seed", args.seed)
+    check_seed("--seed", args.seed)
     if args.workers is not None:
         positive("--workers", args.workers)
     names = task_names(args.task)

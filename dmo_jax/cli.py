@@ -67,7 +67,10 @@ def train_all_main(argv: list[str] | None = None) -> None:
     make_output_dir(args.workdir, "--workdir")
     if any(not (split_dir(data, n, s) / "meta.json").is_file() for n in names for s in ("train", "test")):
         make_output_dir(data, "--data")  # missing splits are generated there
-    training.maybe_initialize_distributed()
+    try:
+        training.maybe_initialize_distributed()
+    except training.TrainingError as err:
+        _fail(str(err))
     summaries, start = {}, time.perf_counter()
     for name in names:
         print(f"[{name}] preset {preset.name}, recipe {preset.recipe}, variant {preset.variant}, "

@@ -58,6 +58,11 @@ def load_evaluations(paths) -> Rows:
                 raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}; compare results "
                                  "of different networks in separate calls")
             source[label, task] = str(path)
+            outcomes = result["episode_success"]
+            if not (isinstance(outcomes, list) and outcomes and all(o in (0, 1) and not isinstance(o, float)
+                                                                    for o in outcomes)):
+                raise ValueError(f"{path}: the episode_success of '{label}' on {task} must be a non-empty list of "
+                                 "0/1 or true/false outcomes, one per scene")
             rows.setdefault(label, {})[task] = np.asarray(result["episode_success"], dtype=int)
     return rows
 

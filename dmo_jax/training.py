@@ -60,11 +60,16 @@ def maybe_initialize_distributed() -> None:
     """Multi-host training: call ``jax.distributed.initialize`` when ``DMO_COORDINATOR``,
     ``DMO_NUM_PROCESSES`` and ``DMO_PROCESS_ID`` are set (one process per host)."""
     if os.environ.get("DMO_COORDINATOR"):
-        jax.distributed.initialize(
-            coordinator_address=os.environ["DMO_COORDINATOR"],
-            num_processes=int(os.environ["DMO_NUM_PROCESSES"]),
-            process_id=int(os.environ["DMO_PROCESS_ID"]),
-        )
+        try:
+            processes, process = int(os.environ.get("DMO_NUM_PROCESSES", "")), int(os.environ.get("DMO_PROCESS_ID", ""))
+        except ValueError:
+            processes = process = -1
+        if not 0 <= process < processes:
+            raise TrainingError(f"DMO_COORDINATOR is set, so DMO_NUM_PROCESSES must be a positive integer and "
+                                f"DMO_PROCESS_ID one in [0, DMO_NUM_PROCESSES); got DMO_NUM_PROCESSES="
+                                f"{os.environ.get('DMO_NUM_PROCESSES')!r}, DMO_PROCESS_ID={os.environ.get('DMO_PROCESS_ID')!r}")
+        jax.distributed.initialize(coordinator_address=os.environ["DMO_COORDINATOR"], num_processes=processes,
+                                   process_id=process)
 
 
 def data_mesh(devices=None) -> jax.sharding.Mesh:

@@ -110,6 +110,10 @@ def paths(tmp_path_factory):
     p["unwritable"] = _unwritable_dir(base / "read_only")
     p["afile"] = base / "a_file.txt"
     p["afile"].write_text("not a directory")
+    for name, outcomes in (("nan", [1, float("nan")]), ("strings", ["yes", "no"]), ("twos", [2, 0])):
+        p[f"eval_{name}"] = base / f"eval_{name}.json"
+        p[f"eval_{name}"].write_text(json.dumps({"results": [
+            {"method": "sort", "n": 8, "R": None, "task": TASK, "episode_success": outcomes}]}))
 
     # motion files for bin/execute
     good = _motions(1, rng)[0]
@@ -299,6 +303,9 @@ COMMAND_CASES = [
     _case("compare", ["{missing}/eval.json"], "does_not_exist/eval.json: no such file"),
     _case("compare", ["{afile}"], "a_file.txt: not a readable JSON file"),
     _case("compare", ["{afile}", "--alpha", "1.5"], "--alpha must lie between 0 and 1, got 1.5"),
+    _case("compare", ["{eval_nan}"], "eval_nan.json: the episode_success of 'sort n=8' on reach_target must be"),
+    _case("compare", ["{eval_strings}"], "eval_strings.json: the episode_success"),
+    _case("compare", ["{eval_twos}"], "eval_twos.json: the episode_success"),
 ]
 
 
@@ -664,3 +671,13 @@ def test_native_evaluation_is_deterministic(generated):
         assert r.pop("seconds") >= 0
     assert runs[0] == runs[1]
     assert runs[0]["episodes"] == 8 and runs[0]["successes"] == 8
+
+
+def test_invalid_multi_host_settings_are_one_line_errors(monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("DMO_COORDINATOR", "localhost:1234")
+    monkeypatch.setenv("DMO_NUM_PROCESSES", "two")
+    monkeypatch.setenv("DMO_PROCESS_ID", "0")
+    with pytest.raises(SystemExit) as exit_info:
+        train_all_main(["--tasks", TASK, "--preset", "tiny", "--workdir", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "DMO_NUM_PROCESSES must be a positive integer" in capsys.readouterr().err

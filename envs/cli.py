@@ -191,9 +191,14 @@ def load_motion_file(path: str) -> np.ndarray:
     from dmo_jax.motion import check_motions
 
     try:
+        with open(path, "rb") as f:
+            magic = f.read(6)
+        if magic != b"\x93NUMPY" and not magic.startswith(b"PK"):
+            fail(f"motion file {path} is not a NumPy file; expected a .npy file written with numpy.save")
         motion = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as err:
-        fail(f"cannot read motion file {path}: {err}; expected a .npy file written with numpy.save")
+        detail = "it holds Python objects, not numbers" if "pickled" in str(err) else str(err)
+        fail(f"cannot read motion file {path}: {detail}; expected a .npy file written with numpy.save")
     if not isinstance(motion, np.ndarray):
         motion.close()
         fail(f"motion file {path} holds several arrays (.npz); expected one [101, 11] array (.npy)")

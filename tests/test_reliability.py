@@ -126,6 +126,8 @@ def paths(tmp_path_factory):
     p["m_garbage"].write_bytes(b"\x93NUMPY garbage, not an array")
     p["m_pickle"] = base / "motion_pickle.npy"
     np.save(p["m_pickle"], np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    p["m_text"] = base / "motion_text.npy"
+    p["m_text"].write_text("0.1 0.2 0.3\n")
     p["m_npz"] = base / "motion_pair.npz"
     np.savez(p["m_npz"], a=good, b=good)
 
@@ -190,7 +192,8 @@ COMMAND_CASES = [
     # bin/execute
     _case("execute", ["--motion", "{missing}/m.npy"], "cannot read motion file"),
     _case("execute", ["--motion", "{m_garbage}"], "cannot read motion file"),
-    _case("execute", ["--motion", "{m_pickle}"], "cannot read motion file"),
+    _case("execute", ["--motion", "{m_pickle}"], "it holds Python objects, not numbers"),
+    _case("execute", ["--motion", "{m_text}"], "motion_text.npy is not a NumPy file"),
     _case("execute", ["--motion", "{m_npz}"], "holds several arrays (.npz)"),
     _case("execute", ["--motion", "{m_nan}"], "holds 101 NaN or inf value(s)"),
     _case("execute", ["--motion", "{m_inf}"], "NaN or inf value(s); expected finite numbers"),

@@ -197,7 +197,7 @@ def load_motion_file(path: str) -> np.ndarray:
             fail(f"motion file {path} is not a NumPy file; expected a .npy file written with numpy.save")
         motion = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as err:
-        detail = "it holds Python objects, not numbers" if "pickled" in str(err) else str(err)
+        detail = "it holds Python objects, not numbers" if "pickle" in str(err) else str(err)
         fail(f"cannot read motion file {path}: {detail}; expected a .npy file written with numpy.save")
     if not isinstance(motion, np.ndarray):
         motion.close()

@@ -20,6 +20,9 @@ DEPTH_NEAR, DEPTH_FAR = 0.5, 3.0
 def network_image(rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """``rgb uint8 [..., S, S, 3]``, ``depth float32 [..., S, S]`` (metres) -> ``float32 [..., S, S, 4]``."""
     rgb = np.asarray(rgb)
+    if not np.issubdtype(np.asarray(depth).dtype, np.floating):
+        raise ValueError(f"depth must be floating-point metres, got {np.asarray(depth).dtype} (integer depth is "
+                         "often millimetres: divide by 1000 first)")
     depth = np.asarray(depth, np.float32)
     if rgb.dtype != np.uint8 or rgb.shape[-1] != 3 or rgb.shape[:-1] != depth.shape:
         raise ValueError(

@@ -684,3 +684,12 @@ def test_invalid_multi_host_settings_are_one_line_errors(monkeypatch, capsys, tm
         train_all_main(["--tasks", TASK, "--preset", "tiny", "--workdir", str(tmp_path)])
     assert exit_info.value.code == 2
     assert "DMO_NUM_PROCESSES must be a positive integer" in capsys.readouterr().err
+
+
+def test_integer_depth_is_refused_not_read_as_metres():
+    from dmo_jax.data import network_image
+
+    rgb = np.zeros((4, 4, 3), np.uint8)
+    with pytest.raises(ValueError, match="depth must be floating-point metres, got uint16 .*millimetres"):
+        network_image(rgb, np.full((4, 4), 1500, np.uint16))
+    assert network_image(rgb, np.full((4, 4), 1.5, np.float32)).shape == (4, 4, 4)

@@ -130,6 +130,18 @@ def atomic_write_text(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
+def _read_chunk(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of one finished batch of a partial split; ``DatasetError`` naming the file if damaged."""
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in ("rgb", "depth", "motions", "seeds", "attempts", "successes")}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+        raise DatasetError(f"corrupt batch file {path} in an unfinished split ({type(err).__name__}: {err}); "
+                           "delete it and rerun to generate that batch again") from err
+
+
 def generate_split(
     task,
     split: str,
@@ -163,8 +175,7 @@ def generate_split(
     chunks = sorted(partial.glob("chunk_*.npz"))
     kept = 0
     for c in chunks:
-        with np.load(c) as z:
-            kept += len(z["seeds"])
+        kept += len(_read_chunk(c)["seeds"])
     next_batch = len(chunks)
     progress = Progress(f"{task.name} {split}", episodes) if verbose else None
     with TaskCamera(task) as camera:
@@ -206,11 +217,11 @@ def generate_split(
     parts = {k: [] for k in ("rgb", "depth", "motions", "seeds")}
     attempts = successes = 0
     for c in sorted(partial.glob("chunk_*.npz")):
-        with np.load(c) as z:
-            for k in parts:
-                parts[k].append(z[k])
-            attempts += int(z["attempts"])
-            successes += int(z["successes"])
+        z = _read_chunk(c)
+        for k in parts:
+            parts[k].append(z[k])
+        attempts += int(z["attempts"])
+        successes += int(z["successes"])
     assembling = final.parent / f".{split}.assembling-{key}"
     shutil.rmtree(assembling, ignore_errors=True)
     assembling.mkdir(parents=True)

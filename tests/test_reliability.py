@@ -693,3 +693,14 @@ def test_integer_depth_is_refused_not_read_as_metres():
     with pytest.raises(ValueError, match="depth must be floating-point metres, got uint16 .*millimetres"):
         network_image(rgb, np.full((4, 4), 1500, np.uint16))
     assert network_image(rgb, np.full((4, 4), 1.5, np.float32)).shape == (4, 4, 4)
+
+
+def test_a_damaged_batch_file_of_an_unfinished_split_is_named(tmp_path):
+    chunk = tmp_path / "chunk_000000.npz"
+    np.savez(chunk, rgb=np.zeros((1, 2, 2, 3), np.uint8), depth=np.zeros((1, 2, 2), np.float32),
+             motions=np.zeros((1, 101, 11), np.float32), seeds=np.zeros(1, np.int64), attempts=np.int64(1),
+             successes=np.int64(1))
+    assert dataset._read_chunk(chunk)["seeds"].shape == (1,)
+    chunk.write_bytes(chunk.read_bytes()[:200])  # truncated, as a failing disk would leave it
+    with pytest.raises(dataset.DatasetError, match=f"corrupt batch file {chunk} in an unfinished split"):
+        dataset._read_chunk(chunk)

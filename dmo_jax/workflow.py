@@ -125,9 +125,12 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
     ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
     preset, other settings, or (given the training motions ``bank [N, 101, 11]``) other data."""
-    from .inference import Models
+    from .inference import METHODS, Models
 
     methods = (method,) if isinstance(method, str) else tuple(method)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method {unknown[0]!r}; expected one of {', '.join(METHODS)}")
     if not isinstance(preset, Preset):
         raise ValueError(f"preset must be a dmo_jax.config.Preset (dmo_jax.get_preset(name)), got {preset!r}")
     paths = RunPaths.of(workdir, task_name, preset)

@@ -704,3 +704,12 @@ def test_a_damaged_batch_file_of_an_unfinished_split_is_named(tmp_path):
     chunk.write_bytes(chunk.read_bytes()[:200])  # truncated, as a failing disk would leave it
     with pytest.raises(dataset.DatasetError, match=f"corrupt batch file {chunk} in an unfinished split"):
         dataset._read_chunk(chunk)
+
+
+def test_load_models_names_a_bad_preset_or_method(tmp_path):
+    from dmo_jax.workflow import load_models
+
+    with pytest.raises(ValueError, match="preset must be a dmo_jax.config.Preset"):
+        load_models(tmp_path, TASK, "tiny", "dmo")
+    with pytest.raises(ValueError, match="unknown method 'dmox'; expected one of sort, dmo"):
+        load_models(tmp_path, TASK, TINY, ["sort", "dmox"])

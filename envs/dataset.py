@@ -167,6 +167,9 @@ def generate_split(
     final = split_dir(root, task.name, split)
     if (final / "meta.json").is_file():
         return final
+    if final.exists():  # the finished split is published by renaming onto this path
+        raise DatasetError(f"{final} exists but is not a complete split (no meta.json); move it away or delete it, "
+                           "then rerun")
     size = task.world.camera.image_size
     key = hashlib.sha1(json.dumps([GENERATOR_VERSION, task.name, split, episodes, size, base_seed, batch]).encode()).hexdigest()[:10]
     partial = final.parent / f".{split}.partial-{key}"

@@ -110,6 +110,8 @@ def paths(tmp_path_factory):
     p["unwritable"] = _unwritable_dir(base / "read_only")
     p["afile"] = base / "a_file.txt"
     p["afile"].write_text("not a directory")
+    p["nometa"] = base / "nometa"
+    (p["nometa"] / TASK / "train").mkdir(parents=True)
     for name, outcomes in (("nan", [1, float("nan")]), ("strings", ["yes", "no"]), ("twos", [2, 0])):
         p[f"eval_{name}"] = base / f"eval_{name}.json"
         p[f"eval_{name}"].write_text(json.dumps({"results": [
@@ -288,6 +290,8 @@ COMMAND_CASES = [
     _case("train_all", TA + ["--workdir", "{tmp}/w5", "--data", "{nan_motions}"], "NaN or inf"),
     _case("train_all", TA + ["--workdir", "{tmp}/w6", "--data", "{nan_depth}"], "depth contains"),
     _case("train_all", TA + ["--workdir", "{tmp}/w7", "--data", "{good}"], "batch size 8 exceeds the 4 training episodes"),
+    _case("generate_data", ["--task", TASK, "--out", "{nometa}", "--image-size", "32"],
+          "exists but is not a complete split (no meta.json)"),
     _case("train_all", TA + ["--workdir", "{runs_vae_cpu}", "--data", "{big}"], "preset: checkpoint has 'cpu', expected 'tiny'"),
     # bin/task_report
     _case("task_report", ["--task", "make_tea"], "unknown task 'make_tea'"),

@@ -80,11 +80,15 @@ def load_split(root: str | Path, task: str, split: str) -> Split:
             f"no complete dataset at {path} (meta.json missing); generate it with "
             f"`bin/generate_data --task {task} --out {root}`"
         )
-    try:
-        meta = json.loads(meta_path.read_text())
-        arrays = {f: np.load(path / f, mmap_mode="r", allow_pickle=False) for f in FILES}
-    except (OSError, ValueError, EOFError) as err:
-        raise DatasetError(f"corrupt dataset at {path}: {err}") from err
+    arrays = {}
+    for name in ("meta.json", *FILES):
+        try:
+            if name == "meta.json":
+                meta = json.loads(meta_path.read_text())
+            else:
+                arrays[name] = np.load(path / name, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError, EOFError) as err:
+            raise DatasetError(f"corrupt dataset at {path}: {name}: {err}") from err
     if not isinstance(meta, dict):
         raise DatasetError(f"corrupt dataset at {path}: meta.json holds a {type(meta).__name__}, expected a JSON object")
     n, s = meta.get("episodes"), meta.get("image_size")

@@ -241,7 +241,7 @@ COMMAND_CASES = [
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{missing}"], "no complete dataset"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{nan_motions}"],
           "motions.npy contains 2222 NaN or inf value(s)"),
-    _case("evaluate", ["--task", TASK, "--method", "blind", "--data", "{corrupt}"], "corrupt dataset"),
+    _case("evaluate", ["--task", TASK, "--method", "blind", "--data", "{corrupt}"], "train: motions.npy:"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{truncated}"], "corrupt dataset"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{badmeta}"], "corrupt dataset"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--data", "{listmeta}"], "expected a JSON object"),

@@ -48,7 +48,7 @@ def train_all_main(argv: list[str] | None = None) -> None:
     if args.dmo_steps is not None and args.dmo_steps < 1:
         _fail(f"--dmo-steps must be at least 1, got {args.dmo_steps}")
 
-    from envs.cli import check_output_file, default_data_dir, make_output_dir, check_seed, task_names
+    from envs.cli import check_output_file, check_seed, default_data_dir, make_output_dir, task_names
     from envs.dataset import DatasetError, split_dir
     from dmo_jax import training, workflow
     from dmo_jax.config import get_preset

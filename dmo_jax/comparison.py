@@ -20,7 +20,7 @@ Rows = dict[str, dict[str, np.ndarray]]
 def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row; a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
-    inputs than the paper's ``(inputs near)``, and networks of a recipe other than the paper's
+    inputs than the paper's ``(inputs offset)``, and networks of a recipe other than the paper's
     ``[recipe]``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]

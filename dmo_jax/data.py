@@ -98,7 +98,6 @@ def motions_fingerprint(motions: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(motions, np.float32).tobytes()).hexdigest()[:16]
 
 
-
 @dataclasses.dataclass(frozen=True)
 class MotionDataset:
     """A task split in memory: ``images [N, S, S, 4]`` float32, ``motions [N, 101, 11]`` float32,

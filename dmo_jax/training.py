@@ -199,7 +199,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg),
+                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg) if near else [0, 0],
                                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives,
                                                          cfg.ebm_depth_negatives]},
                      cfg, near)

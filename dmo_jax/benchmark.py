@@ -399,7 +399,7 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
     Peak memory is XLA's compiled memory analysis (arguments + outputs + temporaries).
     """
-    from .inference import Models, predict, project_motions, refine, top_candidates
+    from .inference import Models, _finite, check_arrays, predict, project_motions, refine, top_candidates
     from .motion import time_grid
     from .networks import DMONet, EBMNet
     from .vae import VAENet
@@ -457,7 +457,12 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
             rows.append({"method": method, "n": n, "R": 1 if method == "dmo" else None, "reuse": True,
                          "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
                          "first_call_s": first[method]})
-    return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows,
+    # predict()'s value checks on the host (inputs: NaN/range of image and bank; result: finite),
+    # the only part of a call outside the compiled program
+    result = predict(models, image, bank, key, preset=p, method="dmo", n=method_n, R=1)
+    checks_ms = 1e3 * statistics.median(time_call(lambda: (check_arrays(image, bank, key), _finite(result)),
+                                                  repeats=repeats, warmup=1))
+    return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows, "checks_ms": checks_ms,
             "cpu": _cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
 
 
@@ -475,6 +480,8 @@ def format_predict_benchmark(r: dict) -> str:
                      f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
                      f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
     ms = {(row["stage"], row["method"], row["n"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
+    if "checks_ms" in r:
+        lines.append(f"predict()'s value checks on the host (image, bank, result): {r['checks_ms']:.2f} ms per call")
     for stage, _, n in sorted(k for k in ms if k[1] == "langevin"):
         if (stage, "dmo", n) in ms:
             lines.append(f"{stage}, n = {n}: 100-step Langevin / DMO (R = 1) wall time = "

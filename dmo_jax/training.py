@@ -9,9 +9,7 @@ step whose loss or gradients are not finite. Batches and keys are pure functions
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import fcntl
 import functools
 import json
 import os
@@ -370,35 +368,11 @@ def fit(
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
-    with _run_lock(workdir):
+    from envs.dataset import writer_lock
+
+    with writer_lock(workdir / ".lock", TrainingError):
         return _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_every, checkpoint_minutes,
                     keep, max_consecutive_skips, stop_after, verbose, devices)
-
-
-@contextlib.contextmanager
-def _run_lock(workdir: Path):
-    """Hold ``workdir/.lock`` exclusively while training there: a second process training the same
-    model fails at once, naming the first, instead of redoing its steps and doubling its metrics.
-    The operating system releases the lock when the holder exits, however it exits."""
-    path = workdir / ".lock"
-    with open(path, "a+") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            holder = f.read().strip() or "another process"
-            raise TrainingError(f"{workdir} is being trained by {holder}; wait for it to finish or use "
-                                "another --workdir") from None
-        f.seek(0)
-        f.truncate()
-        f.write(f"process {os.getpid()}")
-        f.flush()
-        try:
-            yield
-        finally:
-            f.seek(0)
-            f.truncate()
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_every, checkpoint_minutes, keep,

@@ -22,6 +22,8 @@ kept in that order, so a run gives the same bytes however often it was interrupt
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import os
@@ -146,6 +148,34 @@ def _read_chunk(path: Path) -> dict[str, np.ndarray]:
                            "delete it and rerun to generate that batch again") from err
 
 
+@contextlib.contextmanager
+def writer_lock(lock_file: Path, error: type[Exception] = DatasetError):
+    """Hold ``lock_file`` exclusively while writing what it guards: a second writer fails at once
+    with ``error`` naming the first process, instead of redoing its work beside it. The operating
+    system releases the lock when its holder exits, however it exits, so a dead writer's lock is
+    taken over."""
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    directory = lock_file.parent
+    with open(lock_file, "a+") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            raise error(f"{directory} is being written by {holder}; wait for it to finish, or use another "
+                        "directory") from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"process {os.getpid()}")
+        f.flush()
+        try:
+            yield
+        finally:
+            f.seek(0)
+            f.truncate()
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def generate_split(
     task,
     split: str,
@@ -159,11 +189,9 @@ def generate_split(
     """Run ``task``'s expert on successive seeds until ``episodes`` succeed; write the split.
 
     Returns the split's directory. Skips work already done (a complete split is left as is;
-    an interrupted one resumes).
+    an interrupted one resumes). One process writes a split at a time: a second one fails
+    naming the first.
     """
-    from envs import execution
-    from envs.tasks.base import TaskCamera
-
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; expected one of {SPLITS}")
     if episodes < 1:
@@ -174,6 +202,18 @@ def generate_split(
     if final.exists():  # the finished split is published by renaming onto this path
         raise DatasetError(f"{final} exists but is not a complete split (no meta.json); move it away or delete it, "
                            "then rerun")
+    with writer_lock(final.parent / f".{split}.lock"):
+        if (final / "meta.json").is_file():  # finished by the writer that held the lock before
+            return final
+        return _write_split(task, split, episodes, final, base_seed, batch, workers, verbose)
+
+
+def _write_split(task, split: str, episodes: int, final: Path, base_seed: int, batch: int, workers,
+                 verbose: bool) -> Path:
+    """:func:`generate_split`'s work, under its lock: batches to the partial directory, then the split."""
+    from envs import execution
+    from envs.tasks.base import TaskCamera
+
     size = task.world.camera.image_size
     key = hashlib.sha1(json.dumps([GENERATOR_VERSION, task.name, split, episodes, size, base_seed, batch]).encode()).hexdigest()[:10]
     partial = final.parent / f".{split}.partial-{key}"

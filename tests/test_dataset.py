@@ -74,7 +74,7 @@ def test_interrupted_generation_resumes_to_identical_bytes(tmp_path, data, task,
     dataset.generate_split(task, "train", 10, tmp_path, batch=8, verbose=False)
     for f in dataset.FILES + ("meta.json",):
         assert (tmp_path / "reach_target/train" / f).read_bytes() == (data / "reach_target/train" / f).read_bytes()
-    assert [p.name for p in (tmp_path / "reach_target").iterdir()] == ["train"]
+    assert sorted(p.name for p in (tmp_path / "reach_target").iterdir()) == [".train.lock", "train"]  # no partial
 
 
 def test_corrupt_dataset_fails_clearly(tmp_path, data):

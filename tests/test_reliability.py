@@ -654,7 +654,7 @@ def test_generation_killed_mid_write_resumes_to_identical_bytes(tmp_path, genera
     dataset.generate_split(task, "train", 10, data, batch=8, verbose=False)
     for f in dataset.FILES + ("meta.json",):  # same seed, another process, interrupted: the same bytes
         assert (data / TASK / "train" / f).read_bytes() == (root / TASK / "train" / f).read_bytes(), f
-    assert sorted(p.name for p in (data / TASK).iterdir()) == ["train"]
+    assert sorted(p.name for p in (data / TASK).iterdir()) == [".train.lock", "train"]  # no partial left
 
 
 def test_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_path, generated):
@@ -717,3 +717,15 @@ def test_load_models_names_a_bad_preset_or_method(tmp_path):
         load_models(tmp_path, TASK, "tiny", "dmo")
     with pytest.raises(ValueError, match="unknown method 'dmox'; expected one of sort, dmo"):
         load_models(tmp_path, TASK, TINY, ["sort", "dmox"])
+
+
+def test_a_second_writer_of_a_split_fails_naming_the_first(tmp_path):
+    from envs.tasks import get_task
+
+    task = get_task(TASK, 32)
+    with dataset.writer_lock(tmp_path / TASK / ".train.lock"):  # as another bin/generate_data would
+        with pytest.raises(dataset.DatasetError, match=f"being written by process {os.getpid()}; wait"):
+            dataset.generate_split(task, "train", 2, tmp_path, batch=2, verbose=False)
+    assert not (tmp_path / TASK / "train").exists()
+    dataset.generate_split(task, "train", 2, tmp_path, batch=2, verbose=False)  # free once the first is done
+    assert dataset.load_split(tmp_path, TASK, "train").seeds.shape == (2,)

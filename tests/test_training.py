@@ -281,8 +281,10 @@ def test_two_device_step_equals_one_device_step(tmp_path):
 
 def test_a_second_writer_of_a_run_fails_naming_the_first(task_data, tmp_path):
     spec = training.vae_spec(_fast(TINY, 2))
-    with training._run_lock(tmp_path):  # as another bin/train_all on the same work directory would
-        with pytest.raises(training.TrainingError, match=f"being trained by process {os.getpid()}; wait"):
+    from envs.dataset import writer_lock
+
+    with writer_lock(tmp_path / ".lock", training.TrainingError):  # as another bin/train_all would
+        with pytest.raises(training.TrainingError, match=f"being written by process {os.getpid()}; wait"):
             training.fit(spec, task_data[0], tmp_path, verbose=False)
     assert not (tmp_path / "metrics.jsonl").exists()
     _, summary = training.fit(spec, task_data[0], tmp_path, verbose=False)  # free again once the first is done

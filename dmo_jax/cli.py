@@ -140,7 +140,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         "bin/train_all's networks")
     parser.add_argument("--n", type=int, default=8, help="candidates kept from the bank (default 8)")
     parser.add_argument("--R", type=int, default=1, help="DMO refinements at prediction (default 1)")
-    parser.add_argument("--episodes", type=int, default=100, help="test episodes per task (default 100)")
+    parser.add_argument("--episodes", type=int,
+                        help="test episodes per task (default: the first 100, or the whole split if shorter)")
     parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"))
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
@@ -168,7 +169,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         _fail(f"--method {args.method!r}: expected distinct names from {', '.join(WORLD_METHODS + METHODS)}"
               + (f"; unknown: {', '.join(unknown)}" if unknown else ""))
     learned = [m for m in methods if m not in WORLD_METHODS]
-    positive("--episodes", args.episodes)
+    if args.episodes is not None:
+        positive("--episodes", args.episodes)
     check_seed("--seed", args.seed)
     positive("--n", args.n)
     if args.R < 0:

@@ -108,7 +108,8 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
 
 
 def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
-                     settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int = 100, backend: str = "auto",
+                     settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int | None = None,
+                     backend: str = "auto",
                      negatives: str = "in-data+vae", dmo_train_iters: int | None = None, seed: int = 0,
                      viz_dir=None) -> list[dict]:
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
@@ -130,7 +131,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     train = load_split(data_root, task_name, "train")
     bank = np.asarray(train.motions, np.float32)
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
-    evaluation.check_episodes(episodes, test, task_name, data_root)
+    episodes = evaluation.episodes_to_run(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)

@@ -267,10 +267,12 @@ def task_report_main(argv: list[str] | None = None) -> None:
         "and MJX/native agreement, from generated datasets.")
     parser.add_argument("--task", default="all", help="a task name, a comma-separated list, or 'all'")
     parser.add_argument("--data", default=default_data_dir(256), help="dataset root directory (default ./data/256px)")
-    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--episodes", type=int,
+                        help="test episodes per task (default: the first 100, or the whole split if shorter)")
     parser.add_argument("--mjx-episodes", type=int, default=20)
     args = parser.parse_args(argv)
-    positive("--episodes", args.episodes)
+    if args.episodes is not None:
+        positive("--episodes", args.episodes)
     positive("--mjx-episodes", args.mjx_episodes)
     names = task_names(args.task)
     from envs.dataset import DatasetError

@@ -85,24 +85,33 @@ def world_method_candidates(method: str, test: Split, train: Split | None, episo
     raise ValueError(f"unknown method {method!r}; expected one of {WORLD_METHODS}")
 
 
-def check_episodes(episodes: int, test: Split, name: str, data_root) -> None:
-    """Raise ``DatasetError`` when ``episodes`` asks for more scenes than the test split holds."""
+#: Test scenes evaluated when a call does not say (or the whole split, if shorter).
+DEFAULT_EPISODES = 100
+
+
+def episodes_to_run(episodes: int | None, test: Split, name: str, data_root) -> int:
+    """The number of test scenes to evaluate: ``episodes``, or with None the first
+    :data:`DEFAULT_EPISODES` (fewer if the split is shorter); ``DatasetError`` when ``episodes``
+    asks for more scenes than the test split holds."""
     from envs.dataset import DatasetError
 
+    if episodes is None:
+        return min(DEFAULT_EPISODES, len(test))
     if episodes > len(test):
         raise DatasetError(f"{episodes} episodes asked for, but the test split of {name} in {data_root} holds "
                            f"{len(test)}; ask for at most {len(test)} or generate more (bin/generate_data --test N)")
+    return episodes
 
 
-def evaluate_world_method(name: str, method: str, episodes: int, data_root, backend: str = "auto") -> dict:
+def evaluate_world_method(name: str, method: str, episodes: int | None, data_root, backend: str = "auto") -> dict:
     """Evaluate ``expert``, ``blind`` or ``nearest`` on the first ``episodes`` test scenes of task ``name``
-    (see :func:`run_episodes` for the result); raises ``envs.dataset.DatasetError`` if the
-    data is missing."""
+    (None: :func:`episodes_to_run`'s default; see :func:`run_episodes` for the result); raises
+    ``envs.dataset.DatasetError`` if the data is missing or too short."""
     from envs.dataset import load_split
 
     test = load_split(data_root, name, "test")
     train = load_split(data_root, name, "train") if method != "expert" else None
-    check_episodes(episodes, test, name, data_root)
+    episodes = episodes_to_run(episodes, test, name, data_root)
     return {"method": method, **run_episodes(name, test, world_method_candidates(method, test, train, episodes),
                                              backend)}
 
@@ -140,7 +149,7 @@ def success_table(rows: list[tuple[str, dict[str, float]]]) -> str:
     return "\n".join(lines)
 
 
-def task_suite_report(data_root, tasks, episodes: int = 100, mjx_episodes: int = 20, log=print) -> str:
+def task_suite_report(data_root, tasks, episodes: int | None = None, mjx_episodes: int = 20, log=print) -> str:
     """Markdown table per task: expert success (native), blind success (native), and the MJX
     back-end's agreement with native on the expert's first ``mjx_episodes`` episodes."""
     rows = ["| task | expert (native) | blind (native) | MJX agrees with native | expert on MJX |",
@@ -148,7 +157,7 @@ def task_suite_report(data_root, tasks, episodes: int = 100, mjx_episodes: int =
     for name in tasks:
         expert = evaluate_world_method(name, "expert", episodes, data_root, "mujoco")
         blind = evaluate_world_method(name, "blind", episodes, data_root, "mujoco")
-        mjx = evaluate_world_method(name, "expert", mjx_episodes, data_root, "mjx")
+        mjx = evaluate_world_method(name, "expert", min(mjx_episodes, expert["episodes"]), data_root, "mjx")
         agree = sum(a == b for a, b in zip(mjx["episode_success"], expert["episode_success"]))
         rows.append(
             f"| {ABBREVIATIONS.get(name, name)} {name} | {expert['successes']}/{expert['episodes']} "

@@ -454,6 +454,10 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
     if pending is not None:
         count_skips(pending, consecutive_skips)
     mngr.wait_until_finished()
+    if pending is not None and not bool(pending):
+        raise TrainingError(f"{spec.name}: the last step's loss or gradients were not finite (the step was "
+                            f"skipped: the parameters saved at step {end} are the last finite ones, in "
+                            f"{workdir / 'checkpoints'}); check the settings and the data")
     if progress:
         progress.close()
     summary = {"model": spec.name, "steps": int(state.step), "seconds": round(time.perf_counter() - t0, 2),

@@ -319,8 +319,12 @@ COMMAND_CASES = [
 @pytest.mark.parametrize("command, argv, fragment", COMMAND_CASES)
 def test_command_rejects_malformed_input(paths, capsys, command, argv, fragment):
     args = [a.format(**paths) for a in argv]
+    files = lambda: {f: (f.stat().st_size, f.stat().st_mtime_ns) for f in Path(paths["tmp"]).rglob("*") if f.is_file()}
+    before = files()
     with pytest.raises(SystemExit) as exit_info:
         COMMANDS[command](args)
+    after = files()
+    assert {f: after.get(f) for f in before} == before, "a file that was there was changed or removed"
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err

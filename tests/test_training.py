@@ -217,6 +217,15 @@ def test_non_finite_steps_are_skipped_then_stop_the_run(task_data, tmp_path):
         training.fit(bad, task_data[0], tmp_path, max_consecutive_skips=3, verbose=False)
 
 
+def test_a_run_whose_last_loss_is_not_finite_fails_however_short(task_data, tmp_path):
+    spec = training.vae_spec(_fast(TINY, 2))  # fewer steps than the non-finite guard waits for
+    bad = dataclasses.replace(spec, loss_fn=lambda p, b, k, e, s: (jnp.nan * spec.loss_fn(p, b, k, e, s)[0], {}))
+    with pytest.raises(training.TrainingError, match="the last step's loss or gradients were not finite"):
+        training.fit(bad, task_data[0], tmp_path, verbose=False)
+    params, _ = training.load_params(tmp_path, spec)  # what was saved is the last finite parameters
+    assert all(np.isfinite(x).all() for x in jax.tree.leaves(params))
+
+
 def test_non_finite_parameters_are_never_saved_however_short_the_run(task_data, tmp_path):
     spec = training.vae_spec(_fast(TINY, 2))  # fewer steps than the non-finite guard waits for
     nan_init = dataclasses.replace(spec, init_fn=lambda k: jax.tree.map(lambda x: x * jnp.nan, spec.init_fn(k)))

@@ -1,4 +1,4 @@
-"""Success evaluation of learned methods (issue 6): bin/train_all -> bin/evaluate end to end on
+"""Success evaluation of learned methods: bin/train_all -> bin/evaluate end to end on
 the tiny preset, sweeps, JSON, visualisations (the GIF decodes to the rendered frames)."""
 import json
 import subprocess

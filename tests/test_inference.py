@@ -1,4 +1,4 @@
-"""Inference and baselines (issue 6): predict() under jit and vmap, the full-bank/R=0 case,
+"""Inference and baselines: predict() under jit and vmap, the full-bank/R=0 case,
 zero-step baselines, the Langevin sampler's stationary law, and the evaluation path."""
 import dataclasses
 

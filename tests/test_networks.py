@@ -1,4 +1,4 @@
-"""Networks (issue 4): shapes, F reuse, vmap, sampler, parameter counts, DMO identity, VAE."""
+"""Networks: shapes, F reuse, vmap, sampler, parameter counts, DMO identity, VAE."""
 import dataclasses
 import functools
 

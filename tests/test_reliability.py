@@ -1,4 +1,4 @@
-"""Reliability (issue 8).
+"""Reliability.
 
 1. Malformed inputs: every command (called in-process through its ``*_main(argv)``) and
    ``dmo_jax.inference.predict`` fail with one line saying what was wrong and what was

@@ -89,6 +89,10 @@ def split_neighbours(split_path: str | Path, query: np.ndarray, bank: np.ndarray
     bank_pos = positions(bank, intrinsics, image_size)
     query_pos = bank_pos if is_bank else positions(query, intrinsics, image_size)
     index = nearest(query_pos, bank_pos, k, exclude_self=is_bank)
-    atomic_save(index_path, index)
-    atomic_write_text(info_path, json.dumps({"k": k, "fingerprint": fingerprint}, indent=2))
+    try:
+        atomic_save(index_path, index)
+        atomic_write_text(info_path, json.dumps({"k": k, "fingerprint": fingerprint}, indent=2))
+    except OSError as err:  # a read-only dataset: used for this run, computed again by the next
+        if log:
+            log(f"cannot store the neighbours in {path} ({err.strerror or err}); they are used for this run only")
     return index

@@ -78,6 +78,11 @@ def test_neighbours_are_stored_reused_and_rebuilt_when_the_data_changes(tmp_path
     (tmp_path / neighbours.INFO_FILE).write_text('{"k": 8, "fing')
     np.testing.assert_array_equal(neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=8, is_bank=True), first)
     assert json.loads((tmp_path / neighbours.INFO_FILE).read_text())["k"] == 8
+    # a dataset that cannot be written to still gives its neighbours, and says it could not keep them
+    missing = tmp_path / "not_there"
+    np.testing.assert_array_equal(neighbours.split_neighbours(missing, bank, bank, K, 64, k=8, is_bank=True,
+                                                              log=calls.append), first)
+    assert "used for this run only" in calls[-1]
 
 
 def test_near_negatives_lie_closer_to_the_positive_than_random_ones(tmp_path):

@@ -279,8 +279,8 @@ CPU = Preset(
         ebm_steps=500, ebm_batch=8, ebm_gt_negatives=11, ebm_vae_negatives=4,
         dmo_steps=600, dmo_batch=12, lr=3e-4, lr_decay_every=500, dmo_train_iters=3,
     ),
-    # The bank recipe: on 8 tasks x 300 test scenes (BENCHMARKS.md, "the bank recipe") the DMO
-    # solved 56.1 % on average against the paper recipe's 52.3 % (PR 87 against 69 %, PC 100
+    # The bank recipe: on the nine tasks x 300 test scenes (BENCHMARKS.md, "the bank recipe") the
+    # DMO solved 57.6 % on average against the paper recipe's 54.2 % (PR 87 against 69 %, PC 100
     # against 88 %, CB 98 against 94 %, the others within noise).
 ).with_recipe("bank")
 

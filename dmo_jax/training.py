@@ -159,9 +159,10 @@ def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
 HELDOUT_NEAR_NEGATIVES = 63
 
 
-def near_negatives_meta(cfg: TrainConfig) -> list[int]:
-    """``[near negatives, pool]`` an EBM trains with (``[0, 0]`` when off): in its checkpoints."""
-    return [cfg.ebm_near_negatives, cfg.near_pool] if cfg.ebm_near_negatives else [0, 0]
+def near_negatives_meta(cfg: TrainConfig, negatives: str) -> list[int]:
+    """``[near negatives, pool]`` an EBM trains with (``[0, 0]`` when off, and for only-VAE
+    negatives, which draw none): in its checkpoints and its directory's name."""
+    return [cfg.ebm_near_negatives, cfg.near_pool] if cfg.ebm_near_negatives and negatives == "in-data+vae" else [0, 0]
 
 
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
@@ -171,7 +172,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     if negatives not in losses.NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {losses.NEGATIVE_MODES}")
     net, vae, cfg = EBMNet(preset), VAENet.from_preset(preset), preset.train
-    near = cfg.near_pool if cfg.ebm_near_negatives and negatives == "in-data+vae" else 0
+    near_meta = near_negatives_meta(cfg, negatives)
 
     def loss_fn(params, batch, key, vae_params, step):
         k_neg, k_aug, k_loss = jax.random.split(key, 3)
@@ -197,10 +198,10 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "negatives": negatives, "near_negatives": near_negatives_meta(cfg) if near else [0, 0],
+                                     "negatives": negatives, "near_negatives": near_meta,
                                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives,
                                                          cfg.ebm_depth_negatives]},
-                     cfg, near)
+                     cfg, near_meta[1])
 
 
 #: ``near_position_*``: the DMO on each held-out scene's this many nearest training motions.

@@ -36,8 +36,8 @@ class RunPaths:
 
     def ebm(self, preset: Preset, negatives: str) -> Path:
         """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives, if any)."""
-        near, pool = training.near_negatives_meta(preset.train)
-        suffix = f"-near{near}of{pool}" if near and negatives == "in-data+vae" else ""
+        near, pool = training.near_negatives_meta(preset.train, negatives)
+        suffix = f"-near{near}of{pool}" if near else ""
         return self.root / preset.variant / f"ebm-{negatives}{suffix}"
 
     def dmo(self, preset: Preset, train_iters: int) -> Path:
@@ -102,12 +102,11 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     t0 = time.perf_counter()
     vae_spec = _of_task(training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1))), task_name)
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
-    ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=heldout_rivals(train, heldout)),
-                        task_name)
+    rivals = heldout_rivals(train, heldout)
+    ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals), task_name)
     _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
                                      seed=seed, eval_every=_half(ebm_spec))
-    dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=heldout_rivals(train, heldout)),
-                        task_name)
+    dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=rivals), task_name)
     _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed,
                                      eval_every=_half(dmo_spec))
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)

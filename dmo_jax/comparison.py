@@ -20,8 +20,8 @@ Rows = dict[str, dict[str, np.ndarray]]
 def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row; a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
-    inputs than the paper's ``(inputs offset)``, and networks of a recipe other than the paper's
-    ``[recipe]``."""
+    inputs than the paper's ``(inputs offset)``, networks of a recipe other than the paper's
+    ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]
     label = f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
@@ -30,7 +30,9 @@ def row_label(result: dict, settings: dict) -> str:
     inputs = settings.get("dmo_inputs") or "decoded"
     label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != "decoded" else ""
     recipe = settings.get("recipe") or "paper"
-    return label + ("" if recipe == "paper" else f" [{recipe}]")
+    label += "" if recipe == "paper" else f" [{recipe}]"
+    overrides = sorted(item for item in settings.get("set") or () if not item.startswith("dmo_inputs="))
+    return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 
 def load_evaluations(paths) -> Rows:

@@ -132,6 +132,11 @@ class TrainConfig:
     # random other images of the batch: the bank motions it competes with at prediction.
     ebm_near_negatives: int = 0
     near_pool: int = 16
+    # Not in the paper (0 = off, its one-hot target): > 0 (metres) spreads the InfoNCE target
+    # over all candidates as softmax(-d / ebm_target_scale), d a candidate's mean 3-D pose
+    # distance from the positive, so the energies also rank the motions that are not the
+    # positive by how close they lie, as the bank's motions must be ranked at prediction.
+    ebm_target_scale: float = 0.0
     dmo_steps: int = 100_000
     dmo_batch: int = 16
     dmo_train_iters: int = 5  # R during training ("Ours-5")
@@ -150,6 +155,8 @@ class TrainConfig:
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
+        if self.ebm_target_scale < 0:
+            raise ValueError(f"ebm_target_scale must be >= 0 (metres; 0 = one-hot target), got {self.ebm_target_scale}")
         for name in ("lr", "depth_negative_shift"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")

@@ -108,16 +108,28 @@ def depth_negatives(motions, key, num: int, max_shift: float) -> jnp.ndarray:
     return copies.at[..., Z].add(drift)
 
 
-def ebm_loss(ebm, params, images, candidates, key):
+def graded_targets(candidates, intrinsics, image_size: int, scale: float) -> jnp.ndarray:
+    """``[B, 1 + K]`` target distribution over ``candidates [B, 1 + K, 101, 11]``:
+    softmax(-d / ``scale``), d each candidate's mean 3-D pose distance (metres) from the
+    positive (index 0). A candidate ``scale`` farther than another gets e times less mass."""
+    pos = camera_positions(candidates, intrinsics, image_size)
+    dist = jnp.mean(jnp.linalg.norm(pos - pos[:, :1], axis=-1), axis=-1)
+    return jax.nn.softmax(-dist / scale, axis=-1)
+
+
+def ebm_loss(ebm, params, images, candidates, key, targets=None):
     """InfoNCE (temperature 1): cross-entropy of softmax(-E) with the positive (index 0) as
-    target. ``candidates [B, 1 + K, 101, 11]``. Metrics: loss, top-1 accuracy."""
+    target, or with ``targets [B, 1 + K]`` (a distribution, e.g. :func:`graded_targets`).
+    ``candidates [B, 1 + K, 101, 11]``. Metrics: loss, top-1 accuracy."""
     k_enc, k_head = jax.random.split(key)
     feature = ebm.encode(params, images, train=True, rng=k_enc)
     keys = jax.random.split(k_head, images.shape[0])
     energies = jax.vmap(lambda f, m, k: ebm.energy(params, f, m, train=True, rng=k))(feature, candidates, keys)
     logp = jax.nn.log_softmax(-energies, axis=-1)
     accuracy = jnp.mean(jnp.argmin(energies, axis=-1) == 0)
-    return -jnp.mean(logp[:, 0]), {"top1": accuracy}
+    if targets is None:
+        return -jnp.mean(logp[:, 0]), {"top1": accuracy}
+    return -jnp.mean(jnp.sum(targets * logp, axis=-1)), {"top1": accuracy}
 
 
 def ebm_energies(ebm, params, images, candidates, images_per_chunk: int = 4) -> jnp.ndarray:

@@ -166,9 +166,11 @@ def near_negatives_meta(cfg: TrainConfig, negatives: str) -> list[int]:
 
 
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
-             augment: bool = True, heldout_near: np.ndarray | None = None) -> ModelSpec:
+             augment: bool = True, heldout_near: np.ndarray | None = None,
+             camera: tuple | None = None) -> ModelSpec:
     """``extra`` = the trained VAE's parameters (they make the negatives). ``heldout_near
-    [N, 63, 101, 11]``: each held-out motion's nearest training motions, for ``near_top1``."""
+    [N, 63, 101, 11]``: each held-out motion's nearest training motions, for ``near_top1``.
+    ``camera`` ``(K, image_size)``: the data's, needed to train with ``ebm_target_scale``."""
     if negatives not in losses.NEGATIVE_MODES:
         raise ValueError(f"unknown negatives {negatives!r}; expected one of {losses.NEGATIVE_MODES}")
     net, vae, cfg = EBMNet(preset), VAENet.from_preset(preset), preset.train
@@ -178,7 +180,12 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         k_neg, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
         cands = losses.ebm_candidates(vae, vae_params, batch["motions"], k_neg, cfg, negatives, batch.get("near"))
-        return losses.ebm_loss(net, params, images, cands, k_loss)
+        targets = None
+        if cfg.ebm_target_scale:
+            if camera is None:
+                raise TrainingError("graded EBM targets (ebm_target_scale > 0) need the data's camera")
+            targets = losses.graded_targets(cands, *camera, cfg.ebm_target_scale)
+        return losses.ebm_loss(net, params, images, cands, k_loss, targets)
 
     @jax.jit  # compiled once per run, the VAE's negatives included
     def evaluate(params, vae_params, images, motions, rivals):
@@ -187,8 +194,12 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         metrics["depth_top1"] = losses.ebm_eval(net, params, images,
                                                 jnp.concatenate([motions[:, None], depth], axis=1))["top1"]
         if rivals is not None:
-            metrics["near_top1"] = losses.ebm_eval(net, params, images,
-                                                   jnp.concatenate([motions[:, None], rivals], axis=1))["top1"]
+            energies = losses.ebm_energies(net, params, images, jnp.concatenate([motions[:, None], rivals], axis=1))
+            metrics["near_top1"] = jnp.mean(jnp.argmin(energies, axis=-1) == 0)
+            if camera is not None:  # the bank without the positive, as at prediction: how far is the first choice?
+                first = jnp.take_along_axis(rivals, jnp.argmin(energies[:, 1:], axis=-1)[:, None, None, None], 1)[:, 0]
+                metrics["near_first_error"] = jnp.mean(
+                    jax.vmap(lambda m, t: losses.position_error(m, t, *camera))(first, motions))
         return metrics
 
     def eval_fn(params, vae_params):
@@ -199,6 +210,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
                      cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
                                      "negatives": negatives, "near_negatives": near_meta,
+                                     "target_scale": cfg.ebm_target_scale,
                                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives,
                                                          cfg.ebm_depth_negatives]},
                      cfg, near_meta[1])
@@ -282,6 +294,7 @@ def _head_meta(preset: Preset) -> dict:
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
 _META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0],
+                "target_scale": 0.0,
                 "inputs": "decoded"}
 
 

@@ -3,7 +3,7 @@
 Work directory layout (``WORKDIR/<task>/<preset>/``)::
 
     vae/                       checkpoints/, metrics.jsonl   (shared by every variant)
-    <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl   (-near<k>of<pool> with near negatives)
+    <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl   (-near<k>of<pool> with near negatives, -graded<s>cm with graded targets)
     <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl   (-<inputs> unless the paper's)
 
 A model whose checkpoint has reached its step count is loaded, not retrained; an
@@ -35,9 +35,12 @@ class RunPaths:
         return self.root / "vae"
 
     def ebm(self, preset: Preset, negatives: str) -> Path:
-        """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives, if any)."""
+        """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives and
+        graded targets, if any)."""
         near, pool = training.near_negatives_meta(preset.train, negatives)
         suffix = f"-near{near}of{pool}" if near else ""
+        if preset.train.ebm_target_scale:
+            suffix += f"-graded{preset.train.ebm_target_scale * 100:g}cm"
         return self.root / preset.variant / f"ebm-{negatives}{suffix}"
 
     def dmo(self, preset: Preset, train_iters: int) -> Path:
@@ -103,7 +106,7 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     vae_spec = _of_task(training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1))), task_name)
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
     rivals = heldout_rivals(train, heldout)
-    ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals), task_name)
+    ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals, camera=camera), task_name)
     _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
                                      seed=seed, eval_every=_half(ebm_spec))
     dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=rivals), task_name)

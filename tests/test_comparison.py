@@ -76,3 +76,13 @@ def test_command_prints_the_report_and_rejects_an_unknown_row(tmp_path, capsys):
     with pytest.raises(SystemExit):
         compare_main([str(a), "--rows", "dmo n=8 R=1,dfo n=8"])
     assert "no row 'dfo n=8' in these files; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err
+
+
+def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
+    scenes = [1, 0, 1, 0]
+    plain = _evaluation(tmp_path / "plain.json", [("sort", "reach_target", scenes)])
+    other = tmp_path / "other.json"
+    payload = json.loads(_evaluation(other, [("sort", "reach_target", scenes)]).read_text())
+    payload["settings"].update({"recipe": "bank", "set": ["lr=0.001", "depth_cue=true"]})
+    other.write_text(json.dumps(payload))
+    assert list(load_evaluations([plain, other])) == ["sort n=8", "sort n=8 [bank] {depth_cue=true, lr=0.001}"]

@@ -108,6 +108,34 @@ def test_near_negatives_lie_closer_to_the_positive_than_random_ones(tmp_path):
     assert paper.shape == cands.shape
 
 
+def test_graded_targets_rank_candidates_by_their_distance_from_the_positive():
+    bank = _motions(9, seed=3)
+    cands = jnp.asarray(bank[None])  # the first motion is the positive
+    targets = np.asarray(losses.graded_targets(cands, K, 64, scale=0.3))[0]  # these motions lie ~1 m apart
+    dist = _distances(bank[:1], bank)[0]
+    np.testing.assert_allclose(targets.sum(), 1.0, rtol=1e-5)
+    assert targets.argmax() == 0 and (np.argsort(-targets, kind="stable") == np.argsort(dist, kind="stable")).all()
+    # the log-ratio of two candidates' mass is their distance difference over the scale
+    np.testing.assert_allclose(np.log(targets[0] / targets[1:]), dist[1:] / 0.3, rtol=1e-3)
+    # the loss with a one-hot target is the paper's InfoNCE; a graded one is minimised by other energies
+    energies = jnp.asarray(np.random.default_rng(0).standard_normal((1, 9)), jnp.float32)
+
+    class Fixed:  # an "EBM" whose energies are given
+        encode = staticmethod(lambda params, images, train, rng: images)
+        energy = staticmethod(lambda params, f, m, train, rng: params)
+
+    one_hot = jnp.eye(9)[:1]
+    paper, _ = losses.ebm_loss(Fixed, energies[0], jnp.zeros((1, 1)), cands, jax.random.key(0))
+    same, _ = losses.ebm_loss(Fixed, energies[0], jnp.zeros((1, 1)), cands, jax.random.key(0), one_hot)
+    np.testing.assert_allclose(paper, same, rtol=1e-6)
+    best = jnp.asarray(dist / 0.3, jnp.float32)  # energies equal to distance / scale match the targets
+    graded, _ = losses.ebm_loss(Fixed, best, jnp.zeros((1, 1)), cands, jax.random.key(0), targets[None])
+    worse, _ = losses.ebm_loss(Fixed, best.at[1].add(-2.0), jnp.zeros((1, 1)), cands, jax.random.key(0), targets[None])
+    assert float(graded) < float(worse)
+    with pytest.raises(ValueError, match="ebm_target_scale must be >= 0"):
+        get_preset("cpu").with_overrides(["ebm_target_scale=-0.01"])
+
+
 def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")

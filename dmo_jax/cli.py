@@ -23,26 +23,29 @@ def _write_json(path: str, payload) -> None:
 
 
 def train_all_main(argv: list[str] | None = None) -> None:
-    from dmo_jax.config import DEFAULT_PRESET, PRESETS, VARIANTS
+    from dmo_jax.config import VARIANTS
+    from envs.cli import task_help
     from dmo_jax.losses import NEGATIVE_MODES
 
     parser = argparse.ArgumentParser(
         description="Per task: generate the data if missing, then train VAE -> EBM -> DMO, skipping what is "
         "trained and resuming what was interrupted.")
     _add_recipe_argument(parser)
-    parser.add_argument("--tasks", default="all", help="'all' or a comma-separated list of task names")
-    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    parser.add_argument("--tasks", default="all", help=task_help() + " (default all)")
+    _add_preset_argument(parser)
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
     parser.add_argument("--workdir", default="runs", help="checkpoints and metrics (default ./runs)")
-    parser.add_argument("--variant", default="concat", choices=VARIANTS)
-    parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES)
+    parser.add_argument("--variant", default="concat", choices=VARIANTS,
+                        help="architecture (paper Table 2): concat = the paper's model (default)")
+    parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES,
+                        help="the EBM's negatives (paper Table 4): in-data+vae (default) or only-vae")
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or how the "
                         "head reads depth (pose_z_offset, pose_z_scale, depth_cue, depth_cue_range), e.g. "
                         "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
                         "same --workdir")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="training seed: initialisation, batches, draws (default 0)")
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
     if args.dmo_steps is not None and args.dmo_steps < 1:
@@ -87,6 +90,14 @@ def train_all_main(argv: list[str] | None = None) -> None:
         _write_json(args.json, summaries)
 
 
+def _add_preset_argument(parser) -> None:
+    from dmo_jax.config import DEFAULT_PRESET, PRESETS
+
+    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS),
+                        help=f"network sizes and training settings (default {DEFAULT_PRESET}): tiny for tests, cpu "
+                        "for a 2-core CPU at 64 px, paper = the paper's at 256 px")
+
+
 def _add_recipe_argument(parser, purpose: str = "what the networks train on") -> None:
     from dmo_jax.config import RECIPES
 
@@ -123,7 +134,8 @@ def parse_sweep(text: str | None) -> tuple[str, list[int]] | None:
 
 
 def evaluate_main(argv: list[str] | None = None) -> None:
-    from dmo_jax.config import DEFAULT_PRESET, PRESETS, VARIANTS
+    from dmo_jax.config import VARIANTS
+    from envs.cli import BACKEND_HELP, task_help
     from dmo_jax.inference import METHODS
     from dmo_jax.losses import NEGATIVE_MODES
     from envs.evaluation import WORLD_METHODS
@@ -132,7 +144,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         description="Predict from each test scene's first image, execute the ranked candidates (falling back "
         "to the next when one is abandoned) and report success in the paper's layout.")
     _add_recipe_argument(parser, "the networks of that recipe (as given to bin/train_all)")
-    parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
+    parser.add_argument("--task", required=True, help=task_help())
     parser.add_argument("--method", required=True,
                         help=f"one of {', '.join(WORLD_METHODS + METHODS)}, or a comma-separated list (learned "
                         "methods then share one scoring of the bank); expert / blind / nearest (an oracle: the "
@@ -142,11 +154,12 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--R", type=int, default=1, help="DMO refinements at prediction (default 1)")
     parser.add_argument("--episodes", type=int,
                         help="test episodes per task (default: the first 100, or the whole split if shorter)")
-    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"))
-    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"), help=BACKEND_HELP)
+    _add_preset_argument(parser)
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
-    parser.add_argument("--variant", default="concat", choices=VARIANTS)
+    parser.add_argument("--variant", default="concat", choices=VARIANTS,
+                        help="architecture (paper Table 2): concat = the paper's model (default)")
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES, help="which EBM to use")
     parser.add_argument("--dmo-train-steps", type=int,
                         help="use the DMO trained with this many unrolled steps (Ours-5: 5, Ours-1: 1; "
@@ -155,7 +168,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         help="how the networks' head reads depth, if they were trained with a --set of it, e.g. "
                         "--set depth_cue=true --set depth_cue_range=0.1 (as given to bin/train_all; checkpoints refuse "
                         "other values)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the methods' random draws (default 0)")
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
     parser.add_argument("--save-viz", metavar="DIR", help="per episode: trajectories PNG and rollout GIF")
@@ -260,11 +273,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
 
 def cost_main(argv: list[str] | None = None) -> None:
     """``bin/cost``: paper Table 3 (EBM parameters and GMac per variant) from XLA's cost analysis."""
-    from dmo_jax.config import DEFAULT_PRESET, PRESETS
 
     parser = argparse.ArgumentParser(
         description="Paper Table 3 (EBM parameters and GMac, per variant) from XLA's cost analysis.")
-    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    _add_preset_argument(parser)
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object {variant: {params_m, gmac_all, gmac_reuse}}")
     args = parser.parse_args(argv)
@@ -292,7 +304,7 @@ def benchmark_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=64, help="episodes per batch (execution, data)")
     parser.add_argument("--preset", choices=list(PRESETS),
                         help="default: paper for encoder, cpu for train-step and predict")
-    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=10, help="timed runs per measurement (default 10)")
     parser.add_argument("--torch-reference", action="store_true", help="also time a same-sized PyTorch U-Net")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
     parser.add_argument("--out", help="also write the JSON to this file")
@@ -382,12 +394,12 @@ def _format_benchmark(section: str, result: dict) -> str:
 
 def ebm_misses_main(argv: list[str] | None = None) -> None:
     """``bin/ebm_misses``: the EBM's held-out top-1, every miss with its winner and distance."""
-    from dmo_jax.config import DEFAULT_PRESET, PRESETS
+    from envs.cli import task_help
 
     parser = argparse.ArgumentParser(description="Explain the EBM's held-out misses (bin/train_all's ranking).")
     _add_recipe_argument(parser, "the EBM of that recipe (as given to bin/train_all)")
-    parser.add_argument("--task", required=True, help="one task name")
-    parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS))
+    parser.add_argument("--task", required=True, help=task_help(many=False))
+    _add_preset_argument(parser)
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",

@@ -124,11 +124,11 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
 
     from .workflow import load_models
 
-    test = load_split(data_root, task_name, "test")
+    test = load_split(data_root, task_name, "test", preset.image_size)
     if test.meta["image_size"] != preset.image_size:
         raise DatasetError(f"{data_root}/{task_name} has {test.meta['image_size']}px images but preset "
                            f"{preset.name!r} needs {preset.image_size}px; use another --data directory")
-    train = load_split(data_root, task_name, "train")
+    train = load_split(data_root, task_name, "train", preset.image_size)
     bank = np.asarray(train.motions, np.float32)
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
     episodes = evaluation.episodes_to_run(episodes, test, task_name, data_root)

@@ -10,6 +10,11 @@ from pathlib import Path
 import numpy as np
 
 
+#: What ``bin/generate_data`` writes unless told: the default preset's (``cpu``) image size, so the
+#: commands that train and evaluate it find the data where they look.
+DEFAULT_IMAGE_SIZE = 64
+
+
 def default_data_dir(image_size: int) -> str:
     """Datasets of different image sizes live side by side: ``data/<size>px``."""
     return f"data/{image_size}px"
@@ -93,7 +98,7 @@ def render_main(argv: list[str] | None = None) -> None:
         "contact sheet of each task's first training scene.")
     parser.add_argument("--out", required=True, help="PNG file to write")
     parser.add_argument("--size", type=int, default=256, help="image width = height in pixels (default 256)")
-    parser.add_argument("--task", help="a task name, a comma-separated list, or 'all': contact sheet (RGB)")
+    parser.add_argument("--task", help=task_help() + ": a contact sheet (RGB)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the scenes (with --task)")
     args = parser.parse_args(argv)
     image_size("--size", args.size)
@@ -147,7 +152,7 @@ def execute_main(argv: list[str] | None = None) -> None:
         "built-in scripted pick-up of the cube."
     )
     parser.add_argument("--motion", help=".npy file with a [101, 11] float motion")
-    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"))
+    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"), help=BACKEND_HELP)
     parser.add_argument("--save-motion", help="also write the executed motion to this .npy file")
     parser.add_argument("--json", help="write the outcome as JSON to this file")
     args = parser.parse_args(argv)
@@ -208,6 +213,17 @@ def load_motion_file(path: str) -> np.ndarray:
         fail(str(err))
 
 
+BACKEND_HELP = "physics back-end: native MuJoCo, MJX, or auto (MJX on an accelerator, else native; default)"
+
+
+def task_help(many: bool = True) -> str:
+    """``--task``'s help: the task names (and, with ``many``, lists and 'all')."""
+    from envs.tasks import TASKS
+
+    names = ", ".join(TASKS)
+    return f"a task name ({names}), a comma-separated list, or 'all'" if many else f"one task name ({names})"
+
+
 def task_names(arg: str) -> list[str]:
     from envs.evaluation import TASK_ORDER
     from envs.tasks import TASKS
@@ -226,12 +242,13 @@ def positive(name: str, value: int) -> None:
 
 def generate_data_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Generate expert demonstrations (train and test splits) for tasks.")
-    parser.add_argument("--task", required=True, help="a task name, a comma-separated list, or 'all'")
+    parser.add_argument("--task", required=True, help=task_help())
     parser.add_argument("--train", type=int, default=1000, help="training episodes (default 1000)")
     parser.add_argument("--test", type=int, default=100, help="test episodes (default 100)")
     parser.add_argument("--out", help="dataset root directory (default ./data/<image-size>px)")
     parser.add_argument("--seed", type=int, default=0, help="base seed; train and test seeds never overlap")
-    parser.add_argument("--image-size", type=int, default=256, help="image width = height (default 256)")
+    parser.add_argument("--image-size", type=int, default=DEFAULT_IMAGE_SIZE,
+                        help=f"image width = height (default {DEFAULT_IMAGE_SIZE}, the default preset's; the paper's is 256)")
     parser.add_argument("--workers", type=int, default=None, help="physics threads (default: one per core)")
     args = parser.parse_args(argv)
     for name in ("train", "test"):
@@ -241,6 +258,12 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     if args.workers is not None:
         positive("--workers", args.workers)
     names = task_names(args.task)
+    from envs.dataset import size_in_name
+
+    named = size_in_name(args.out) if args.out else None
+    if named is not None and named != args.image_size:
+        fail(f"--out {args.out} is named for {named}px images but --image-size is {args.image_size}; "
+             f"pass --image-size {named} or another --out")
     out = make_output_dir(args.out or default_data_dir(args.image_size), "--out")
 
     import time
@@ -265,11 +288,12 @@ def task_report_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description="The task-suite table of BENCHMARKS.md: expert and blind success on the native back-end "
         "and MJX/native agreement, from generated datasets.")
-    parser.add_argument("--task", default="all", help="a task name, a comma-separated list, or 'all'")
+    parser.add_argument("--task", default="all", help=task_help() + " (default all)")
     parser.add_argument("--data", default=default_data_dir(256), help="dataset root directory (default ./data/256px)")
     parser.add_argument("--episodes", type=int,
                         help="test episodes per task (default: the first 100, or the whole split if shorter)")
-    parser.add_argument("--mjx-episodes", type=int, default=20)
+    parser.add_argument("--mjx-episodes", type=int, default=20,
+                        help="episodes per task run on MJX too, to compare verdicts with native MuJoCo (default 20)")
     args = parser.parse_args(argv)
     if args.episodes is not None:
         positive("--episodes", args.episodes)

@@ -27,6 +27,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,19 +70,27 @@ class DatasetError(Exception):
     """A dataset is missing, incomplete or inconsistent."""
 
 
+def size_in_name(root: str | Path) -> int | None:
+    """The image size a dataset root's name gives (``data/64px`` -> 64), else None."""
+    match = re.fullmatch(r"(\d+)px", Path(root).name)
+    return int(match.group(1)) if match else None
+
+
 def split_dir(root: str | Path, task: str, split: str) -> Path:
     return Path(root) / task / split
 
 
-def load_split(root: str | Path, task: str, split: str) -> Split:
-    """Memory-map ``root/<task>/<split>``; raise :class:`DatasetError` saying what is wrong."""
+def load_split(root: str | Path, task: str, split: str, image_size: int | None = None) -> Split:
+    """Memory-map ``root/<task>/<split>``; raise :class:`DatasetError` saying what is wrong.
+    ``image_size``: the size the caller needs, for the command a missing split's error prints
+    (default: the size in the root's name, ``data/<size>px``)."""
     path = split_dir(root, task, split)
     meta_path = path / "meta.json"
     if not meta_path.is_file():
+        size = image_size or size_in_name(root)
         raise DatasetError(
             f"no complete dataset at {path} (meta.json missing); generate it with "
-            f"`bin/generate_data --task {task} --out {root}`"
-        )
+            f"`bin/generate_data --task {task} --out {root}" + (f" --image-size {size}`" if size else "`"))
     arrays = {}
     for name in ("meta.json", *FILES):
         try:

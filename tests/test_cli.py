@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,3 +69,30 @@ def test_commands_started_by_another_python_run_in_the_project_environment():
     for script in ("bin/demo", "bin/setup"):  # --help prints help and does nothing else
         proc = subprocess.run([script, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert proc.returncode == 0 and proc.stdout.strip() and not proc.stderr
+
+
+def test_every_command_help_describes_every_option_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    import argparse
+
+    from dmo_jax import cli as learning
+    from envs import cli as world
+
+    commands = {"benchmark": learning.benchmark_main, "compare": learning.compare_main, "cost": learning.cost_main,
+                "ebm_misses": learning.ebm_misses_main, "evaluate": learning.evaluate_main,
+                "train_all": learning.train_all_main, "execute": world.execute_main,
+                "generate_data": world.generate_data_main, "render": world.render_main,
+                "task_report": world.task_report_main}
+    assert set(commands) | {"demo", "setup", "test"} == {p.name for p in (ROOT / "bin").iterdir()
+                                                        if p.is_file() and not p.name.startswith("_")}
+    monkeypatch.chdir(tmp_path)
+    real = argparse.ArgumentParser.parse_args
+    for name, main in commands.items():
+        parsers = []
+        monkeypatch.setattr(argparse.ArgumentParser, "parse_args",
+                            lambda self, *a, **k: (parsers.append(self), real(self, *a, **k))[1])
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--help"])
+        assert exit_info.value.code == 0 and capsys.readouterr().out.startswith("usage: "), name
+        undescribed = [a.option_strings for a in parsers[0]._actions if a.option_strings and not a.help]
+        assert not undescribed, f"{name}: options without help: {undescribed}"
+    assert not list(tmp_path.iterdir())

@@ -210,6 +210,7 @@ COMMAND_CASES = [
     # bin/generate_data
     _case("generate_data", ["--task", "make_tea", "--out", "{tmp}/d"], "unknown task 'make_tea'"),
     _case("generate_data", ["--task", "", "--out", "{tmp}/d"], "unknown task ''"),
+    _case("generate_data", ["--task", TASK, "--out", "{tmp}/d/128px"], "named for 128px images but --image-size is 64"),
     _case("generate_data", ["--task", TASK, "--train", "0", "--out", "{tmp}/d"], "--train must be a positive integer"),
     _case("generate_data", ["--task", TASK, "--test", "-3", "--out", "{tmp}/d"], "--test must be a positive integer"),
     _case("generate_data", ["--task", TASK, "--image-size", "0"], "--image-size must be between 1 and 512"),
@@ -733,3 +734,14 @@ def test_a_second_writer_of_a_split_fails_naming_the_first(tmp_path):
     assert not (tmp_path / TASK / "train").exists()
     dataset.generate_split(task, "train", 2, tmp_path, batch=2, verbose=False)  # free once the first is done
     assert dataset.load_split(tmp_path, TASK, "train").seeds.shape == (2,)
+
+
+def test_the_missing_dataset_hint_run_as_printed_makes_the_dataset_needed(tmp_path, capsys):
+    data = tmp_path / "data" / "32px"
+    with pytest.raises(SystemExit):
+        evaluate_main(["--task", TASK, "--method", "sort", "--preset", "tiny", "--data", str(data)])
+    hint = capsys.readouterr().err.strip().splitlines()[-1].split("`")[1].split()
+    assert hint[0] == "bin/generate_data" and "--image-size" in hint
+    generate_data_main(hint[1:] + ["--train", "3", "--test", "2"])  # the printed command, fewer episodes
+    split = dataset.load_split(data, TASK, "test")
+    assert split.meta["image_size"] == TINY.image_size and len(split.motions) == 2

@@ -20,6 +20,7 @@ _EXPORTS = {
     "Prediction": "inference",
     "Ranking": "inference",
     "OptimizerSettings": "inference",
+    "CoarseRanking": "inference",
     "METHODS": "inference",
     "get_preset": "config",
     "PRESETS": "config",

@@ -457,13 +457,38 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
             rows.append({"method": method, "n": n, "R": 1 if method == "dmo" else None, "reuse": True,
                          "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
                          "first_call_s": first[method]})
+    bank_scoring = _bank_scoring_round_robin(models, image, bank, p, method_n, repeats)
     # predict()'s value checks on the host (inputs: NaN/range of image and bank; result: finite),
     # the only part of a call outside the compiled program
     result = predict(models, image, bank, key, preset=p, method="dmo", n=method_n, R=1)
     checks_ms = 1e3 * statistics.median(time_call(lambda: (check_arrays(image, bank, key), _finite(result)),
                                                   repeats=repeats, warmup=1))
     return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows, "checks_ms": checks_ms,
+            "bank_scoring": bank_scoring,
             "cpu": _cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
+
+
+def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> list[dict]:
+    """One image's bank scoring (:func:`~dmo_jax.inference.top_candidates`, top ``n``) in full and
+    in two stages (the default :class:`~dmo_jax.inference.CoarseRanking`), timed round-robin, with
+    XLA's FLOP count of each (compiled with the bank in one chunk: XLA counts a loop's body once)."""
+    from .inference import CoarseRanking, _top_candidates_jit, top_candidates
+
+    paths = {"full": None, "coarse {}/{}".format(*CoarseRanking()): CoarseRanking()}
+    runs = {name: (lambda c=c: top_candidates(models, image, bank, preset=p, n=n, coarse=c).motions)
+            for name, c in paths.items()}
+    times = {name: [] for name in paths}
+    for run in runs.values():
+        jax.block_until_ready(run())
+    for _ in range(repeats):
+        for name, run in runs.items():
+            times[name] += time_call(run, repeats=1, warmup=0)
+    rows = []
+    for name, c in paths.items():
+        scoring = lambda m, i, b, c=c: _top_candidates_jit(m, i, b, preset=p, n=n, chunk=b.shape[0], coarse=c).energies
+        rows.append({"path": name, "n": n, "median_ms": 1e3 * statistics.median(times[name]),
+                     "gflop": compiled_flops(scoring, models, image, bank) / 1e9})
+    return rows
 
 
 def _mb(nbytes):
@@ -480,6 +505,12 @@ def format_predict_benchmark(r: dict) -> str:
                      f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
                      f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
     ms = {(row["stage"], row["method"], row["n"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
+    if r.get("bank_scoring"):
+        full, *others = r["bank_scoring"]
+        for row in others:
+            lines.append(f"bank scoring for the top {row['n']}, {row['path']} against full: {row['median_ms']:.0f} "
+                         f"against {full['median_ms']:.0f} ms ({full['median_ms'] / row['median_ms']:.1f}x), "
+                         f"{row['gflop']:.1f} against {full['gflop']:.1f} GFLOP")
     if "checks_ms" in r:
         lines.append(f"predict()'s value checks on the host (image, bank, result): {r['checks_ms']:.2f} ms per call")
     for stage, _, n in sorted(k for k in ms if k[1] == "langevin"):

@@ -119,6 +119,21 @@ def _summary_table(summaries: dict) -> str:
     return "\n".join(rows)
 
 
+def parse_coarse(text: str | None):
+    """``"4,64"`` -> ``CoarseRanking(stride=4, keep=64)``; None -> None."""
+    from dmo_jax.inference import CoarseRanking
+
+    if text is None:
+        return None
+    try:
+        stride, keep = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--coarse must look like STRIDE,KEEP (e.g. 4,64), got {text!r}") from None
+    if stride < 1 or keep < 1:
+        raise ValueError(f"--coarse {text}: STRIDE and KEEP must be positive")
+    return CoarseRanking(stride, keep)
+
+
 def parse_sweep(text: str | None) -> tuple[str, list[int]] | None:
     """``"n=1,8,1000"`` -> ``("n", [1, 8, 1000])``; ``"R=1,5,10"`` -> ``("R", [1, 5, 10])``."""
     if text is None:
@@ -170,6 +185,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         "other values)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the methods' random draws (default 0)")
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
+    parser.add_argument("--coarse", metavar="STRIDE,KEEP",
+                        help="score the bank in two stages (dmo_jax.inference.CoarseRanking): every motion on every "
+                        "STRIDE-th pose, then the KEEP best on all poses, e.g. 4,64; the bank is also scored in "
+                        "full, untimed, to report how many of its top n the coarse scoring kept (coarse_recall)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
     parser.add_argument("--save-viz", metavar="DIR", help="per episode: trajectories PNG and rollout GIF")
     args = parser.parse_args(argv)
@@ -191,9 +210,11 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     if args.dmo_train_steps is not None:
         positive("--dmo-train-steps", args.dmo_train_steps)
     try:
-        sweep = parse_sweep(args.sweep)
+        sweep, coarse = parse_sweep(args.sweep), parse_coarse(args.coarse)
     except ValueError as err:
         _fail(str(err))
+    if coarse and not learned:
+        _fail("--coarse needs a learned method (it changes how the EBM scores the bank)")
     if sweep and len(learned) < len(methods):
         _fail(f"--sweep needs learned methods only, not {', '.join(m for m in methods if m not in learned)}")
     if sweep and (min(sweep[1]) < (1 if sweep[0] == "n" else 0)):
@@ -234,7 +255,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                 found += evaluate_methods(
                     name, learned, preset=preset, workdir=args.workdir, data_root=data, settings=settings,
                     episodes=args.episodes, backend=args.backend, negatives=args.negatives,
-                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz)
+                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse)
         except (DatasetError, training.TrainingError, ValueError) as err:
             _fail(str(err))
         for result in found:
@@ -250,7 +271,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                      f"{result['optimised_first']:.0%} of scenes" + (
                          f"; the top {result['n']} lie {100 * result['mean_start_error_m']:.1f} cm from it, the "
                          f"optimised ones {100 * result['mean_optimised_error_m']:.1f} cm"
-                         if "mean_optimised_error_m" in result else "") + ")"
+                         if "mean_optimised_error_m" in result else "")
+                     + (f"; the coarse scoring kept {result['coarse_recall']:.0%} of the full one's top "
+                        f"{result['n']} in {result['bank_seconds']:.1f} s, against {result['full_bank_seconds']:.1f} s"
+                        if "coarse_recall" in result else "") + ")"
                      if "predict_seconds" in result else ")"),
                   file=sys.stderr)
     rows = [(label, {t: r["success_rate"] for t, r in per_task.items()}) for label, per_task in by_row.items()]
@@ -267,7 +291,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                          "recipe": preset.recipe, "dmo_inputs": preset.train.dmo_inputs, "negatives": args.negatives,
                          "dmo_train_steps": args.dmo_train_steps,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
-                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set},
+                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set,
+                         "coarse": args.coarse},
             "results": results})
 
 

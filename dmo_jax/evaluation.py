@@ -16,7 +16,7 @@ import numpy as np
 
 from .config import Preset
 from .data import network_image
-from .inference import METHODS_USING_R, OptimizerSettings, refine, top_candidates
+from .inference import METHODS_USING_R, CoarseRanking, OptimizerSettings, refine, top_candidates
 from .motion import Z
 
 
@@ -31,10 +31,10 @@ def _padded_batches(images: np.ndarray, batch: int):
 
 def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.ndarray, bank: np.ndarray,
                      settings: Sequence[tuple[int, int]], seed: int = 0, batch: int = 10,
-                     optimizer: OptimizerSettings = OptimizerSettings()):
+                     optimizer: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None = None):
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` for network
     ``images [E, S, S, 4]``, scoring the bank once (its top ``max n``; a smaller n takes the
-    first n of them).
+    first n of them; ``coarse``: in two stages, :class:`~dmo_jax.inference.CoarseRanking`).
 
     Returns ``(starts, predictions, seconds)``: the EBM's top ``max n`` bank motions per image
     ``[E, max n, 101, 11]``; per :func:`prediction_key` the ranked ``(candidates [E, K, 101, 11],
@@ -47,10 +47,11 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     t0 = time.perf_counter()
     # F is dropped (recomputed by each refine call): kept for every image it would take 64 MB per
     # image at the paper preset
-    rankings = [top_candidates(models, x, bank, preset=preset, n=n_max)._replace(feature=None)
+    rankings = [top_candidates(models, x, bank, preset=preset, n=n_max, coarse=coarse)._replace(feature=None)
                 for _, x in _padded_batches(images, batch)]
     jax.block_until_ready(rankings)
     seconds = {"bank": time.perf_counter() - t0}
+    starts = np.concatenate([np.asarray(r.motions) for r in rankings])[:e]
     predictions = {}
     for n, R in settings:
         for method in methods:
@@ -66,7 +67,21 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
                 energies.append(np.asarray(out.energies))
             predictions[slot] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
             seconds[slot] = time.perf_counter() - t0
-    return np.concatenate([np.asarray(r.motions) for r in rankings])[:e], predictions, seconds
+    return starts, predictions, seconds
+
+
+def coarse_recall(models, preset: Preset, images: np.ndarray, bank: np.ndarray, starts: np.ndarray,
+                  batch: int = 10) -> tuple[np.ndarray, float]:
+    """How much of the full bank scoring a coarse one kept: per image of ``images [E, S, S, 4]``,
+    the fraction of the full ranking's top n that ``starts [E, n, 101, 11]`` (a coarse ranking's)
+    holds, ``float [E]``; and the full scoring's wall time in seconds."""
+    n, bank = starts.shape[1], jax.numpy.asarray(bank)
+    t0 = time.perf_counter()
+    full = np.concatenate([np.asarray(top_candidates(models, x, bank, preset=preset, n=n).motions)
+                           for _, x in _padded_batches(images, min(batch, len(images)))])[:len(images)]
+    seconds = time.perf_counter() - t0
+    same = (full[:, :, None] == starts[:, None]).all(axis=(-1, -2)).any(axis=2)  # [E, n]: kept by the coarse one
+    return same.mean(axis=1), seconds
 
 
 def prediction_key(method: str, n: int, R: int) -> tuple:
@@ -111,13 +126,16 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
                      settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int | None = None,
                      backend: str = "auto",
                      negatives: str = "in-data+vae", dmo_train_iters: int | None = None, seed: int = 0,
-                     viz_dir=None) -> list[dict]:
+                     viz_dir=None, coarse: CoarseRanking | None = None) -> list[dict]:
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
     ``episodes`` test images of a task (the bank scored once for all) and execute.
 
     Returns one result per setting and method (settings outer; a method that ignores R once
     per n, with ``R`` None): the ``run_episodes`` result plus ``method``, ``n``, ``R``,
-    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`.
+    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`. With a
+    ``coarse`` ranking (:class:`~dmo_jax.inference.CoarseRanking`) the bank is also scored in
+    full, untimed, for ``coarse_recall`` (:func:`coarse_recall`, mean over the scenes) and
+    ``full_bank_seconds``.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split
@@ -133,7 +151,13 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
     episodes = evaluation.episodes_to_run(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
-    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed)
+    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed,
+                                                    coarse=coarse)
+    extra = {}
+    if coarse is not None:
+        recall, full_seconds = coarse_recall(models, preset, images, bank, starts)
+        extra = {"coarse": list(coarse), "coarse_recall": round(float(recall.mean()), 4),
+                 "bank_seconds": round(seconds["bank"], 2), "full_bank_seconds": round(full_seconds, 2)}
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)
     results = []
     for (method, n, R), (cands, energies) in predictions.items():
@@ -146,7 +170,8 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
         diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
                                          preset.image_size)
         results.append({"method": method, "n": n, "R": R, **result,
-                        "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics})
+                        "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics,
+                        **extra})
     return results
 
 

@@ -65,6 +65,17 @@ class OptimizerSettings:
     dfo_shrink: float = 0.5
 
 
+class CoarseRanking(NamedTuple):
+    """A two-stage bank scoring (:func:`top_candidates`): every bank motion is scored on its
+    poses ``0, stride, 2 stride, ...`` (101 poses at stride 4: 26, about a quarter of the head's
+    work and a sixteenth of its attention), the ``keep`` lowest are scored again on all 101
+    poses, and the ``n`` lowest of those are kept. ``None`` where a call takes one: every
+    motion is scored on all its poses (the paper's)."""
+
+    stride: int = 4
+    keep: int = 64
+
+
 class Models(NamedTuple):
     """Parameters of one task's trained networks (``dmo`` / ``vae`` may be None when the
     method does not need them)."""
@@ -109,7 +120,8 @@ def num_candidates(method: str, n: int, R: int) -> int:
     return 2 * n
 
 
-def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, R: int) -> None:
+def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, R: int,
+                  coarse: CoarseRanking | None = None) -> None:
     """Static checks of a :func:`predict` call; raises ``ValueError`` naming what is wrong."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
@@ -127,6 +139,13 @@ def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, 
         raise ValueError(f"n must be in [1, bank size {bank_shape[0]}], got {n}")
     if R < 0:
         raise ValueError(f"R must be >= 0, got {R}")
+    if coarse is not None:
+        if not isinstance(coarse, CoarseRanking) or not all(_is_integer(v) for v in coarse):
+            raise ValueError(f"coarse must be a CoarseRanking(stride, keep) of integers or None, got {coarse!r}")
+        if not 1 <= coarse.stride < NUM_STEPS:
+            raise ValueError(f"coarse.stride must be in [1, {NUM_STEPS - 1}], got {coarse.stride}")
+        if not n <= coarse.keep <= bank_shape[0]:
+            raise ValueError(f"coarse.keep must be in [n = {n}, bank size {bank_shape[0]}], got {coarse.keep}")
 
 
 def _is_concrete(x) -> bool:
@@ -263,10 +282,14 @@ def _masked(delta):
 
 
 # --------------------------------------------------------------------------- one image
-def _top_n(preset: Preset, n: int, chunk: int, models: Models, image, bank) -> Ranking:
+def _top_n(preset: Preset, n: int, chunk: int, coarse: CoarseRanking | None, models: Models, image,
+           bank) -> Ranking:
     """The ``n`` lowest-energy motions of ``bank`` for one image (best first), with F."""
     ebm = EBMNet(preset)
     feature = ebm.encode(models.ebm, image)
+    if coarse is not None:
+        rough = chunked_energy(ebm, models.ebm, feature, bank[:, ::coarse.stride], chunk)
+        bank = bank[jax.lax.top_k(-rough, coarse.keep)[1]]
     bank_energy = chunked_energy(ebm, models.ebm, feature, bank, chunk)
     neg_energy, top = jax.lax.top_k(-bank_energy, n)
     return Ranking(bank[top], -neg_energy, feature)
@@ -324,9 +347,9 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
     return Prediction(cands[0], cands, energies)
 
 
-@functools.partial(jax.jit, static_argnames=("preset", "n", "chunk"))
-def _top_candidates_jit(models, image, bank, *, preset, n, chunk):
-    one = functools.partial(_top_n, preset, n, chunk, models)
+@functools.partial(jax.jit, static_argnames=("preset", "n", "chunk", "coarse"))
+def _top_candidates_jit(models, image, bank, *, preset, n, chunk, coarse):
+    one = functools.partial(_top_n, preset, n, chunk, coarse, models)
     # A batch is scored one image after another: vmapped, B images would hold B chunks of the
     # head's activations at once (10 images x 256 motions of the ViT variant's 357-token
     # attention: 17 GB resident in bin/evaluate).
@@ -341,15 +364,15 @@ def _refine_jit(models, image, ranking, key, *, preset, method, R, chunk, settin
     return jax.vmap(one)(image, ranking, jax.random.split(key, image.shape[0]))
 
 
-@functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings"))
-def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings):
-    ranking = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk)
+@functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings", "coarse"))
+def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings, coarse):
+    ranking = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse)
     return _refine_jit(models, image, ranking, key, preset=preset, method=method, R=R, chunk=chunk, settings=settings)
 
 
 def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
             method: str = "dmo", n: int = 8, R: int = 1, chunk: int | None = None,
-            settings: OptimizerSettings = OptimizerSettings()) -> Prediction:
+            settings: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None = None) -> Prediction:
     """Predict motions for ``image`` with the trained networks of one task.
 
     Args:
@@ -366,6 +389,8 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       R: DMO refinements (``dmo`` only; R = 0 returns the EBM's ranking).
       chunk: bank motions scored at once per image (bounds memory); None: :func:`default_chunk`.
       settings: the baselines' step sizes and iteration counts.
+      coarse: a :class:`CoarseRanking` scores the bank in two stages (less work; it may miss
+        motions the full scoring would keep); None: every motion on all its poses.
 
     Returns:
       :class:`Prediction` — best motion, ranked candidates, energies.
@@ -374,20 +399,22 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       ValueError: one line saying what is wrong and what was expected — unknown method or
         preset, image not ``[S, S, 4]`` / ``[B, S, S, 4]`` floating-point in [0, 1], bank not
         ``[N, 101, 11]`` floating-point, NaN or inf in image or bank, n outside [1, N],
-        R < 0, a key that is not one PRNG key, parameters missing or of another preset or
+        R < 0, a coarse ranking keeping fewer than n or more than N, a key that is not one PRNG key, parameters missing or of another preset or
         variant, an empty image batch; and non-finite energies or motions in the result
         (NaN or inf parameters, or motions so large the networks overflow; the check reads
         the result on the host, 0.02 ms for 10 images on 2 CPU cores). Inside the caller's
         ``jax.jit`` the arrays are tracers: shapes and dtypes are still checked, values (NaN,
         range, the result) are not.
     """
-    preset, image, bank, key, chunk = _checked_call(models, preset, method, image, bank, key, n, R, chunk)
+    preset, image, bank, key, chunk = _checked_call(models, preset, method, image, bank, key, n, R, chunk,
+                                                    coarse=coarse)
     return _finite(_predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
-                                R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings))
+                                R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings,
+                                coarse=coarse))
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
-                   chunk: int | None = None) -> Ranking:
+                   chunk: int | None = None, coarse: CoarseRanking | None = None) -> Ranking:
     """Step 2 of :func:`predict` alone: a :class:`Ranking` of the ``n`` lowest-energy bank motions
     per image (``motions [n, 101, 11]``, or ``[B, n, 101, 11]`` for a batch of images, best
     first), with their energies and the EBM's F.
@@ -395,10 +422,12 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     With :func:`refine` it splits :func:`predict` in two, so that several methods can start
     from one scoring of the bank (the costly part: N EBM evaluations per image).
     ``refine(models, image, top_candidates(models, image, bank, ...), key, ...)`` equals
-    ``predict(models, image, bank, key, ...)``. Raises ``ValueError`` as :func:`predict` does.
+    ``predict(models, image, bank, key, ...)``. ``coarse`` as in :func:`predict`. Raises
+    ``ValueError`` as :func:`predict` does.
     """
-    preset, image, bank, _, chunk = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk)
-    return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk))
+    preset, image, bank, _, chunk = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk,
+                                                  coarse=coarse)
+    return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse))
 
 
 def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: jax.Array, *, preset: Preset,
@@ -443,7 +472,7 @@ def _finite(result):
     return result
 
 
-def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank"):
+def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank", coarse=None):
     """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
     (``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
     ``(preset, image, bank, key, chunk)``: arrays, a Preset and the chunk (None: the default)."""
@@ -456,7 +485,7 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         if not _is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
     image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
-    check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R)
+    check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R, coarse)
     if not isinstance(models, Models):
         raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
     if models.ebm is None:

@@ -183,7 +183,7 @@ class MotionTrunk(nn.Module):
             image_tokens = 0
         elif cfg.variant == "wo_concat":
             tokens = jnp.concatenate([bilinear_sample(feature, motions[..., POSE_KEYS["uv"]]), g], axis=-2)
-            image_tokens = NUM_STEPS
+            image_tokens = motions.shape[-2]
         elif cfg.variant == "gap":
             pooled = jnp.mean(feature, axis=(0, 1))
             tokens = jnp.concatenate([jnp.broadcast_to(pooled, (n, 1, w)), g], axis=-2)
@@ -201,10 +201,12 @@ class MotionTrunk(nn.Module):
         return tokens, tokens[:, image_tokens:]
 
 
-def _flatten_motions(motions):
-    if motions.shape[-2:] != (NUM_STEPS, POSE_DIM):
-        raise ValueError(f"motions must be [..., {NUM_STEPS}, {POSE_DIM}], got {motions.shape}")
-    return motions.reshape((-1, NUM_STEPS, POSE_DIM)), motions.shape[:-2]
+def _flatten_motions(motions, any_length: bool = False):
+    """``[..., T, 11] -> ([M, T, 11], leading shape)``; T must be 101 unless ``any_length``."""
+    steps = motions.shape[-2] if any_length and motions.ndim >= 2 and motions.shape[-2] > 0 else NUM_STEPS
+    if motions.shape[-2:] != (steps, POSE_DIM):
+        raise ValueError(f"motions must be [..., {'T' if any_length else NUM_STEPS}, {POSE_DIM}], got {motions.shape}")
+    return motions.reshape((-1, steps, POSE_DIM)), motions.shape[:-2]
 
 
 def _check_feature(feature, head: HeadConfig):
@@ -238,9 +240,10 @@ class EBM(nn.Module):
         return _encode(self.encoder, self.preset.head, image, deterministic)
 
     def energy(self, feature, motions, deterministic: bool = True):
-        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]``."""
+        """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
+        coarse ranking (``inference``), which scores motions on a subset of their poses."""
         _check_feature(feature, self.preset.head)
-        flat, lead = _flatten_motions(motions)
+        flat, lead = _flatten_motions(motions, any_length=True)
         tokens, _ = self.trunk(feature, flat, deterministic)
         return self.energy_mlp(jnp.mean(tokens, axis=-2))[..., 0].reshape(lead)
 

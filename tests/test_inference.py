@@ -142,10 +142,34 @@ def test_langevin_samples_a_gaussian_with_its_mean_and_variance():
     (dict(n=0), "n must be"),
     (dict(n=13), "n must be"),
     (dict(R=-1), "R must be"),
+    (dict(n=4, coarse=inference.CoarseRanking(4, 3)), r"coarse.keep must be in \[n = 4, bank size 12\]"),
+    (dict(coarse=inference.CoarseRanking(0, 8)), r"coarse.stride must be in \[1, 100\]"),
+    (dict(coarse=(4, 8)), "coarse must be a CoarseRanking"),
 ])
 def test_bad_requests_fail_clearly(models, bank, kwargs, message):
     with pytest.raises(ValueError, match=message):
         predict(models, _images(1)[0], bank, jax.random.key(0), preset=TINY, **kwargs)
+
+
+def test_coarse_ranking_keeps_full_energies_and_is_exact_when_it_keeps_the_whole_bank(models, bank):
+    images, key = _images(2), jax.random.key(0)
+    full = inference.top_candidates(models, images, bank, preset=TINY, n=4)
+    whole = inference.top_candidates(models, images, bank, preset=TINY, n=4, coarse=inference.CoarseRanking(4, 12))
+    np.testing.assert_array_equal(whole.motions, full.motions)
+    np.testing.assert_allclose(whole.energies, full.energies, rtol=1e-5, atol=1e-5)
+    coarse = inference.CoarseRanking(stride=4, keep=6)
+    ranking = inference.top_candidates(models, images, bank, preset=TINY, n=4, coarse=coarse)
+    ebm = EBMNet(TINY)
+    for i in range(2):  # the kept motions carry their energies on all 101 poses, ranked, and come from
+        # the 6 best on poses 0, 4, ..., 100
+        np.testing.assert_allclose(ranking.energies[i], ebm.energy(models.ebm, ranking.feature[i], ranking.motions[i]),
+                                   rtol=1e-5, atol=1e-5)
+        assert bool(jnp.all(jnp.diff(ranking.energies[i]) >= 0))
+        rough = ebm.energy(models.ebm, ranking.feature[i], bank[:, ::4])
+        pool = np.asarray(bank)[np.argsort(np.asarray(rough))[:6]]
+        assert all((pool == m).all(axis=(1, 2)).any() for m in np.asarray(ranking.motions[i]))
+    out = predict(models, images, bank, key, preset=TINY, method="dmo", n=4, R=1, coarse=coarse)
+    assert out.candidates.shape == (2, 8, 101, 11)
 
 
 def test_wrong_image_size_and_empty_bank_fail_clearly(models, bank):

@@ -1,8 +1,8 @@
-"""Typed presets: network sizes and training hyper-parameters (method.md).
+"""Typed presets: network sizes and training hyper-parameters (docs/method.md).
 
 ``get_preset(name)`` returns a frozen :class:`Preset`; ``tiny`` is for tests and CI
 (seconds), ``cpu`` (the default) is sized for this project's 2-core CPU machine, and
-``paper`` matches method.md / the authors' code (EBM 35,866,625 parameters, DMO
+``paper`` matches docs/method.md / the authors' code (EBM 35,866,625 parameters, DMO
 35,883,858, motion VAE 7,772,178 at 256x256).
 
 Variants (paper Table 2) are chosen with ``preset.with_variant(name)`` or
@@ -108,7 +108,7 @@ DMO_INPUTS = ("decoded", "offset")
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Training hyper-parameters of method.md ("Training"); used by the training code."""
+    """Training hyper-parameters of docs/method.md ("Training"); used by the training code."""
 
     lr: float = 1e-4
     lr_decay: float = 0.99

@@ -20,7 +20,7 @@ about half of the paper's 23.62. The paper's count matches ours if transposed co
 counted as thop counts ``nn.ConvTranspose2d`` (output elements x C_in x k^2, i.e. k^2 times
 the real work when stride = kernel): the 4x4/4 head becomes 12.9 G instead of 0.81 G and
 the three 2x2/2 up-convs 0.91 G instead of 0.23 G, giving ~23.5 GMac. The ViT variant as
-method.md defines it (a 16x16/16 conv on the 128-channel F) has 4.19 M more parameters
+docs/method.md defines it (a 16x16/16 conv on the 128-channel F) has 4.19 M more parameters
 than the paper's ViT row.
 """
 from __future__ import annotations

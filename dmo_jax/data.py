@@ -68,7 +68,7 @@ def _coarse_dropout(rgb, key):
 
 
 def augment_image(image: jnp.ndarray, key: jax.Array) -> jnp.ndarray:
-    """method.md's RGB augmentation on one ``[S, S, 4]`` image: one of {Gaussian noise
+    """docs/method.md's RGB augmentation on one ``[S, S, 4]`` image: one of {Gaussian noise
     sigma 0.05, JPEG-like loss, brightness +-40/255, 3x3 box blur, coarse dropout, identity},
     chosen uniformly. Depth is never changed."""
     rgb, depth = image[..., :3], image[..., 3:]

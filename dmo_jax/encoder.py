@@ -1,4 +1,4 @@
-"""ConvNeXt U-Net image encoder (method.md, "Networks").
+"""ConvNeXt U-Net image encoder (docs/method.md, "Networks").
 
 ``image [..., H, W, 4] float32 -> F [..., H, W, C]`` with ``C = EncoderConfig.out_dim``
 (128 in the paper preset). Layout is NHWC throughout.

@@ -1,4 +1,4 @@
-"""Prediction (method.md, "Inference") and the paper's baselines behind one interface.
+"""Prediction (docs/method.md, "Inference") and the paper's baselines behind one interface.
 
 :func:`predict` is pure and ``jax.jit``-compiled once per (method, n, R, bank size, image
 batch shape). For every method it
@@ -15,7 +15,7 @@ batch shape). For every method it
 comparing several methods from one scoring of the bank; the :class:`Ranking` passed between them
 carries F and the starts' energies, so neither is computed twice.
 
-Methods (all start from the same top-n; settings of method.md):
+Methods (all start from the same top-n; settings of docs/method.md):
 
 * ``sort``      EBM ranking only, no optimisation;
 * ``dmo``       the Deep Motion Optimizer applied R times, vmapped over the candidates,
@@ -53,7 +53,7 @@ METHODS_USING_R = ("dmo",)
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSettings:
-    """Baseline settings (method.md, "Baselines"); the defaults are the paper's."""
+    """Baseline settings (docs/method.md, "Baselines"); the defaults are the paper's."""
 
     langevin_step: float = 1e-3
     langevin_iters: int = 100

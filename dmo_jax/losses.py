@@ -1,4 +1,4 @@
-"""Losses and negative samplers of method.md ("Training"): VAE, EBM InfoNCE, DMO unroll.
+"""Losses and negative samplers of docs/method.md ("Training"): VAE, EBM InfoNCE, DMO unroll.
 
 All functions are pure and jit-able; ``images [B, S, S, 4]``, ``motions [B, 101, 11]``.
 """

@@ -1,4 +1,4 @@
-"""Motion representation (method.md, "Data").
+"""Motion representation (docs/method.md, "Data and motion representation").
 
 A motion is ``[T + 1, 11]`` = ``[101, 11]`` float32 pose vectors in the **camera frame**
 (OpenCV convention: x right, y down, z forward along the optical axis):

@@ -1,4 +1,4 @@
-"""EBM and DMO networks (method.md, "Networks"; paper Sec. III-C and Table 2).
+"""EBM and DMO networks (docs/method.md, "Networks"; paper Sec. III-C and Table 2).
 
 Both networks = ConvNeXt U-Net encoder (``dmo_jax.encoder``) + a motion head. The encoder
 runs once per image; the head takes ``(F [H, W, C], motions [..., 101, 11])`` for any

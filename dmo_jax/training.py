@@ -1,4 +1,4 @@
-"""Training the motion VAE, the EBM and the DMO (method.md, "Training").
+"""Training the motion VAE, the EBM and the DMO (docs/method.md, "Training").
 
 One generic loop (:func:`fit`) runs a jitted pure ``train_step(state, batch, key, extra)``
 for any of the three models: data parallel over all devices (batch sharded on a ``data``

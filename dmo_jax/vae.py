@@ -1,4 +1,4 @@
-"""ACTOR-style motion VAE (method.md, "Motion VAE"), trained on motions only.
+"""ACTOR-style motion VAE (docs/method.md, "Motion VAE"), trained on motions only.
 
 Encoder: the 10 pose numbers (uv, z, rotation, grasp; not time) of each of the 101 steps
 -> MLP 10 -> 256 -> 512 -> d (GELU); two learned tokens (mu, sigma) are prepended, sinusoidal

@@ -1,6 +1,6 @@
 """Executing motions: camera-frame poses -> IK joint targets -> controls -> physics rollouts.
 
-The pipeline (method.md, "Execution and success"):
+The pipeline (docs/method.md, "Execution and success"):
 
 1. :func:`plan` turns each motion's 101 camera-frame poses into world TCP targets and
    solves IK for them in order (damped least squares, warm-started, jit + vmap). A

@@ -17,7 +17,7 @@ import numpy as np
 TABLE_HEIGHT = 0.75
 ROBOT_BASE = (0.0, 0.0, TABLE_HEIGHT)
 CAMERA_NAME = "front"
-# tasks.md: ~1.65 m in front of the base along x, 1.88 m high, looking at the workspace.
+# The front camera: ~1.65 m in front of the base along x, 1.88 m high, looking at the workspace.
 CAMERA_POS = (1.65, 0.0, 1.88)
 CAMERA_TARGET = (0.3, 0.0, TABLE_HEIGHT + 0.12)
 CAMERA_FOVY = 40.0

@@ -103,8 +103,9 @@ def _add_recipe_argument(parser, purpose: str = "what the networks train on") ->
 
     parser.add_argument("--recipe", choices=RECIPES,
                         help=f"training recipe: {purpose}. paper: the paper's negatives and DMO inputs; bank: "
-                        "about half of the EBM's in-data negatives are each scene's nearest training motions "
-                        "(default: the preset's own, dmo_jax.config.RECIPES)")
+                        "about half of the EBM's in-data negatives are each scene's nearest training motions, and "
+                        "its target ranks every candidate by its distance from the scene's motion (default: the "
+                        "preset's own, dmo_jax.config.RECIPES)")
 
 
 def _summary_table(summaries: dict) -> str:

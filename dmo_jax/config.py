@@ -176,19 +176,24 @@ class TrainConfig:
 #:
 #: * ``paper``: the paper's. The EBM's in-data negatives are other images' motions drawn at
 #:   random from the batch; the DMO's inputs are VAE samples of the ground truth.
-#: * ``bank``: as ``paper``, but about half of the EBM's in-data negatives (6 of the ``cpu``
-#:   preset's 11) are each positive's nearest other training motions (of its 16 nearest), the
-#:   motions it must beat in the bank at prediction; the random ones still teach it the image.
+#: * ``bank``: the EBM trains on what it ranks at prediction, the bank's motions nearest the
+#:   scene, none of them the scene's own. About half of its in-data negatives (6 of the ``cpu``
+#:   preset's 11) are each positive's nearest other training motions (of its 16 nearest), and
+#:   its InfoNCE target spreads over all candidates by their distance from the positive
+#:   (``ebm_target_scale``, 1 cm), so it learns to rank the motions that are not the positive by
+#:   how close they lie. The random negatives still teach it the image. The DMO is the paper's.
 RECIPES = ("paper", "bank")
+#: The bank recipe's ``ebm_target_scale`` (metres).
+BANK_TARGET_SCALE = 0.01
 
 
 def recipe_settings(recipe: str, train: TrainConfig) -> dict:
     """The :class:`TrainConfig` fields ``recipe`` sets, for a preset training with ``train``."""
     if recipe == "paper":
-        return {"ebm_near_negatives": 0}
+        return {"ebm_near_negatives": 0, "ebm_target_scale": 0.0}
     if recipe == "bank":
         near = (train.ebm_gt_negatives + 1) // 2
-        return {"ebm_near_negatives": near, "near_pool": max(16, near)}
+        return {"ebm_near_negatives": near, "near_pool": max(16, near), "ebm_target_scale": BANK_TARGET_SCALE}
     raise ValueError(f"unknown recipe {recipe!r}; valid recipes: {', '.join(RECIPES)}")
 
 

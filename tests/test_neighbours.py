@@ -139,9 +139,11 @@ def test_graded_targets_rank_candidates_by_their_distance_from_the_positive():
 def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")
-    assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool) == ("bank", 6, 16)
+    assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale) == \
+        ("bank", 6, 16, 0.01)
     assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
-    assert get_preset("cpu", recipe="paper").train.ebm_near_negatives == 0
+    paper = get_preset("cpu", recipe="paper").train
+    assert (paper.ebm_near_negatives, paper.ebm_target_scale) == (0, 0.0)
     with pytest.raises(ValueError, match="unknown recipe 'ibc'"):
         get_preset("cpu", recipe="ibc")
     with pytest.raises(ValueError, match="exceeds ebm_gt_negatives"):
@@ -175,5 +177,5 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
     assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
     # one VAE and one DMO (they do not depend on the negatives), an EBM per recipe
     ebms = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert ebms == ["dmo-R2", "ebm-in-data+vae", "ebm-in-data+vae-near2of16"]
+    assert ebms == ["dmo-R2", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm"]
     assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()

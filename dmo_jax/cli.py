@@ -482,7 +482,7 @@ def compare_main(argv: list[str] | None = None) -> None:
     if not 0 < args.alpha < 1:
         _fail(f"--alpha must lie between 0 and 1, got {args.alpha}")
 
-    from dmo_jax.comparison import comparison_report, load_evaluations, select_rows
+    from dmo_jax.comparison import comparison_report, distance_table, load_distances, load_evaluations, select_rows
 
     try:
         rows = load_evaluations(args.files)
@@ -490,5 +490,8 @@ def compare_main(argv: list[str] | None = None) -> None:
             rows = select_rows(rows, [label.strip() for label in args.rows.split(",") if label.strip()])
         against = args.against or next((label for label in rows if label.startswith("dmo n=8 R=1")), "dmo n=8 R=1")
         print(comparison_report(rows, against, args.alpha))
+        distances = {label: d for label, d in load_distances(args.files).items() if label in rows}
+        if distances:
+            print("\n" + distance_table(distances))
     except ValueError as err:
         _fail(str(err))

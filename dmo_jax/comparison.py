@@ -38,14 +38,9 @@ def row_label(result: dict, settings: dict) -> str:
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 
-def load_evaluations(paths) -> Rows:
-    """Per-scene successes of every (row, task) in the given ``bin/evaluate --json`` files.
-
-    Raises ValueError when a file is missing, is not an evaluation file, or gives a row and
-    task another file already gave (results of different networks must not be mixed silently).
-    """
-    rows: Rows = {}
-    source: dict[tuple[str, str], str] = {}
+def _labelled_results(paths):
+    """``(path, label, result)`` for every result in the given ``bin/evaluate --json`` files;
+    raises ValueError when a file is missing or is not an evaluation file."""
     for path in map(Path, paths):
         try:
             payload = json.loads(path.read_text())
@@ -58,18 +53,41 @@ def load_evaluations(paths) -> Rows:
             raise ValueError(f"{path}: not a `bin/evaluate --json` file (expected a 'results' list whose entries "
                              "have 'episode_success')")
         for result in results:
-            label, task = row_label(result, payload.get("settings", {})), result["task"]
-            if (label, task) in source:
-                raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}; compare results "
-                                 "of different networks in separate calls")
-            source[label, task] = str(path)
-            outcomes = result["episode_success"]
-            if not (isinstance(outcomes, list) and outcomes and all(o in (0, 1) and not isinstance(o, float)
-                                                                    for o in outcomes)):
-                raise ValueError(f"{path}: the episode_success of '{label}' on {task} must be a non-empty list of "
-                                 "0/1 or true/false outcomes, one per scene")
-            rows.setdefault(label, {})[task] = np.asarray(result["episode_success"], dtype=int)
+            yield path, row_label(result, payload.get("settings", {})), result
+
+
+def load_evaluations(paths) -> Rows:
+    """Per-scene successes of every (row, task) in the given ``bin/evaluate --json`` files.
+
+    Raises ValueError when a file is missing, is not an evaluation file, or gives a row and
+    task another file already gave (results of different networks must not be mixed silently).
+    """
+    rows: Rows = {}
+    source: dict[tuple[str, str], str] = {}
+    for path, label, result in _labelled_results(paths):
+        task = result["task"]
+        if (label, task) in source:
+            raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}; compare results "
+                             "of different networks in separate calls")
+        source[label, task] = str(path)
+        outcomes = result["episode_success"]
+        if not (isinstance(outcomes, list) and outcomes and all(o in (0, 1) and not isinstance(o, float)
+                                                                for o in outcomes)):
+            raise ValueError(f"{path}: the episode_success of '{label}' on {task} must be a non-empty list of "
+                             "0/1 or true/false outcomes, one per scene")
+        rows.setdefault(label, {})[task] = np.asarray(result["episode_success"], dtype=int)
     return rows
+
+
+def load_distances(paths) -> dict[str, dict[str, tuple[float, float]]]:
+    """``{row: {task: (distance, in depth)}}``: the first-ranked motion's mean 3-D distance from
+    the scene's demonstration, and its part along the camera axis (metres), for the rows of
+    learned methods (``bin/evaluate``'s ``first_error_m`` / ``first_depth_error_m``)."""
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for _, label, result in _labelled_results(paths):
+        if "first_error_m" in result:
+            out.setdefault(label, {})[result["task"]] = (result["first_error_m"], result["first_depth_error_m"])
+    return out
 
 
 def select_rows(rows: Rows, labels: list[str]) -> Rows:
@@ -91,6 +109,20 @@ def paired_counts(a: np.ndarray, b: np.ndarray) -> tuple[int, int]:
     if a.shape != b.shape:
         raise ValueError(f"cannot pair {a.shape[0]} scenes with {b.shape[0]}; evaluate both on the same episodes")
     return int(np.sum((a == 1) & (b == 0))), int(np.sum((a == 0) & (b == 1)))
+
+
+def distance_table(distances: dict[str, dict[str, tuple[float, float]]]) -> str:
+    """Markdown: per row and task, the first-ranked motion's distance from the demonstration in
+    cm, with its part in depth in brackets (:func:`load_distances`)."""
+    from envs.evaluation import ABBREVIATIONS, TASK_ORDER
+
+    tasks = [t for t in TASK_ORDER if any(t in per_task for per_task in distances.values())]
+    lines = ["| first-ranked motion's distance from the demonstration, cm (in depth) | "
+             + " | ".join(ABBREVIATIONS[t] for t in tasks) + " |", "|---" * (len(tasks) + 1) + "|"]
+    for label, per_task in distances.items():
+        cells = [f"{100 * per_task[t][0]:.1f} ({100 * per_task[t][1]:.1f})" if t in per_task else "–" for t in tasks]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def comparison_report(rows: Rows, reference: str, alpha: float = 0.05) -> str:

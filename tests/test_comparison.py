@@ -86,3 +86,13 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     payload["settings"].update({"recipe": "bank", "set": ["lr=0.001", "depth_cue=true"]})
     other.write_text(json.dumps(payload))
     assert list(load_evaluations([plain, other])) == ["sort n=8", "sort n=8 [bank] {depth_cue=true, lr=0.001}"]
+
+
+def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):
+    path = _evaluation(tmp_path / "a.json", [("dmo", "reach_target", [1, 0]), ("sort", "reach_target", [0, 0])])
+    payload = json.loads(path.read_text())
+    payload["results"][0].update(first_error_m=0.0123, first_depth_error_m=0.004)
+    path.write_text(json.dumps(payload))
+    compare_main([str(path)])
+    out = capsys.readouterr().out
+    assert "| dmo n=8 R=1 | 1.2 (0.4) |" in out and "| sort n=8 | – |" not in out  # sort has no distances here

@@ -193,7 +193,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         "STRIDE-th pose, then the KEEP best on all poses, e.g. 4,64; the bank is also scored in "
                         "full, untimed, to report how many of its top n the coarse scoring kept (coarse_recall)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
-    parser.add_argument("--save-viz", metavar="DIR", help="per episode: trajectories PNG and rollout GIF")
+    parser.add_argument("--save-viz", metavar="DIR", help="per episode (the first 10): a trajectories figure (PNG) and a rollout video (MP4)")
     args = parser.parse_args(argv)
 
     from envs.cli import check_output_file, check_seed, check_writable_dir, default_data_dir, positive, task_names

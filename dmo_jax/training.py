@@ -26,7 +26,7 @@ from flax import struct
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from . import losses
+from . import losses, run_metrics
 from .config import Preset, TrainConfig
 from .data import MotionDataset, augment_batch
 from .networks import DMONet, EBMNet
@@ -425,6 +425,7 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
 
     start = int(state.step)
     end = spec.steps if stop_after is None else min(stop_after, spec.steps)
+    title = " ".join(str(x) for x in (spec.meta.get("task"), spec.meta.get("preset"), workdir.name) if x)
     progress = Progress(f"train {spec.name}", spec.steps, initial=start) if verbose and start < end else None
     base_key = jax.random.key(seed)
     t0, consecutive_skips, last, pending = time.perf_counter(), 0, {}, None
@@ -454,6 +455,8 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
             if evaluate:
                 record.update({f"heldout_{k}": float(v) for k, v in spec.eval_fn(state.params, extra).items()})
             _append_jsonl(metrics_path, record)
+            if evaluate:
+                run_metrics.export(workdir, title)
             if progress:
                 progress.update(done, f"loss {last['loss']:.4f}")
         overdue = checkpoint_minutes is not None and time.perf_counter() - last_save >= 60 * checkpoint_minutes
@@ -474,6 +477,8 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
                             f"{workdir / 'checkpoints'}); check the settings and the data")
     if progress:
         progress.close()
+    if start < end:
+        run_metrics.export(workdir, title)
     summary = {"model": spec.name, "steps": int(state.step), "seconds": round(time.perf_counter() - t0, 2),
                "skipped_steps": int(state.skipped), **_last_heldout(metrics_path)}
     return jax.device_get(state.params), summary

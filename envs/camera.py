@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import struct
-import zlib
+import secrets
+from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
@@ -110,24 +110,27 @@ def depth_to_rgb(depth: np.ndarray, near: float | None = None, far: float | None
     return np.repeat((scaled * 255).astype(np.uint8)[..., None], 3, axis=-1)
 
 
+def write_atomically(path: str | Path, write: Callable[[Path], None]) -> None:
+    """Call ``write(tmp)`` with a fresh temporary name beside ``path``, then rename it to ``path``:
+    readers see the old file or the whole new one, never a part. The temporary file is removed
+    if ``write`` fails."""
+    path = Path(path)
+    # A unique name that ``write`` creates itself (so the file gets the usual permissions),
+    # ending in ``path``'s suffix for writers that choose the format by it.
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
     """Write a uint8 ``[H, W, 3]`` image as PNG, atomically (temporary name, then rename)."""
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"write_png expects a [H, W, 3] uint8 image, got shape {rgb.shape}")
-    h, w, _ = rgb.shape
-    raw = b"".join(b"\x00" + rgb[row].tobytes() for row in range(h))
+    import imageio.v3 as iio
 
-    def chunk(tag: bytes, payload: bytes) -> bytes:
-        return struct.pack(">I", len(payload)) + tag + payload + struct.pack(">I", zlib.crc32(tag + payload))
-
-    png = (
-        b"\x89PNG\r\n\x1a\n"
-        + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-        + chunk(b"IDAT", zlib.compress(raw, 6))
-        + chunk(b"IEND", b"")
-    )
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(png)
-    tmp.replace(path)
+    write_atomically(path, lambda tmp: iio.imwrite(tmp, rgb, extension=".png", plugin="pillow"))

@@ -95,7 +95,7 @@ def check_seed(name: str, value: int) -> None:
 def render_main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description="Render the front view (RGB beside depth) of the default scene, or with --task a "
-        "contact sheet of each task's first training scene.")
+        "contact sheet of each task's first training scene, labelled with the task names.")
     parser.add_argument("--out", required=True, help="PNG file to write")
     parser.add_argument("--size", type=int, default=256, help="image width = height in pixels (default 256)")
     parser.add_argument("--task", help=task_help() + ": a contact sheet (RGB)")
@@ -106,43 +106,82 @@ def render_main(argv: list[str] | None = None) -> None:
     names = task_names(args.task) if args.task else None
     out = Path(args.out)
     check_output_file(out, "--out")
-    import mujoco
-
-    from envs import camera, demo
+    from envs import camera
 
     try:
         if names:
             image = _contact_sheet(names, args.size, args.seed)
             what = f"contact sheet of {args.task}"
         else:
-            world = demo.default_world(args.size)
-            data = mujoco.MjData(world.model)
-            data.qpos[:] = world.home_qpos()
-            mujoco.mj_forward(world.model, data)
-            with camera.SceneRenderer(world.model, args.size) as renderer:
-                rgb, depth = renderer.rgbd(data)
-            image = np.concatenate([rgb, camera.depth_to_rgb(depth)], axis=1)
-            what = f"RGB | depth {depth.min():.2f}-{depth.max():.2f} m"
+            image, (near, far) = _front_view(args.size)
+            what = f"RGB | depth {near:.2f}-{far:.2f} m, 1st-99th percentile of the scene, near = bright"
     except (ValueError, RuntimeError) as err:
         fail(str(err))
     camera.write_png(out, image)
     print(f"wrote {out} ({what})")
 
 
+def _front_view(size: int) -> tuple[np.ndarray, tuple[float, float]]:
+    """The default scene at home from the front camera: RGB beside grey depth, ``[S, 2S, 3]``,
+    and the depth range ``(near, far)`` in metres that the grey scale spans."""
+    import mujoco
+
+    from envs import camera, demo
+
+    world = demo.default_world(size)
+    data = mujoco.MjData(world.model)
+    data.qpos[:] = world.home_qpos()
+    mujoco.mj_forward(world.model, data)
+    with camera.SceneRenderer(world.model, size) as renderer:
+        rgb, depth = renderer.rgbd(data)
+    far_plane = float(world.model.vis.map.zfar * world.model.stat.extent)
+    near, far = _depth_range(depth, far_plane)
+    return np.concatenate([rgb, camera.depth_to_rgb(depth, near, far)], axis=1), (near, far)
+
+
+def _depth_range(depth: np.ndarray, far_plane: float,
+                 percentiles: tuple[float, float] = (1, 99)) -> tuple[float, float]:
+    """The ``percentiles`` of the finite depths ``[H, W]`` (m) nearer than the far plane (where
+    the empty background renders), so a legend spans what the scene holds; the whole finite
+    range if nothing is nearer."""
+    finite = depth[np.isfinite(depth)]
+    scene = finite[finite < 0.999 * far_plane]
+    if scene.size == 0:
+        scene = finite if finite.size else np.zeros(1, np.float32)
+    near, far = (float(v) for v in np.percentile(scene, percentiles))
+    return near, max(far, near + 1e-3)
+
+
 def _contact_sheet(names: list[str], size: int, seed: int, columns: int = 3) -> np.ndarray:
+    """Each task's first training scene (RGB) on a grid of ``columns``, the task name above each
+    tile, drawn with matplotlib: uint8 ``[rows * (C + L), columns * C, 3]`` with tiles of C =
+    ``size`` times the smallest whole factor that makes them at least 256 pixels wide (so the
+    names fit) and a label band of L pixels."""
     from envs.dataset import episode_seed
     from envs.tasks import get_task
     from envs.tasks.base import TaskCamera
+    from envs.video import agg_figure, figure_rgb
 
     tiles = []
     for name in names:
         task = get_task(name, size)
         with TaskCamera(task) as cam:
             tiles.append(cam.rgbd(task.reset(episode_seed(seed, "train", 0)))[0])
-    while len(tiles) % columns:
-        tiles.append(np.zeros_like(tiles[0]))
-    rows = [np.concatenate(tiles[i : i + columns], axis=1) for i in range(0, len(tiles), columns)]
-    return np.concatenate(rows, axis=0)
+    columns = min(columns, len(tiles))
+    rows = -(-len(tiles) // columns)
+    cell = size * -(-256 // size)
+    label = 22
+    width, height = columns * cell, rows * (cell + label)
+    fig = agg_figure(width, height)
+    for i, (name, tile) in enumerate(zip(names, tiles)):
+        r, c = divmod(i, columns)
+        bottom = height - (r + 1) * (cell + label)
+        ax = fig.add_axes((c * cell / width, bottom / height, cell / width, cell / height))
+        ax.imshow(tile, interpolation="nearest")
+        ax.set_axis_off()
+        fig.text((c + 0.5) * cell / width, (bottom + cell + label / 2) / height, name,
+                 ha="center", va="center", fontsize=9)
+    return figure_rgb(fig)
 
 
 def execute_main(argv: list[str] | None = None) -> None:

@@ -1,67 +1,87 @@
-"""Rollout videos: render an executed episode frame by frame and write an animated GIF.
+"""Rollout videos (render an executed episode frame by frame, write it as MP4 or GIF) and the
+off-screen matplotlib figures that the pictures are drawn on.
 
-The GIF writer is self-contained (no imaging library): frames are quantised to a fixed
-6 x 7 x 6 colour cube and LZW-coded with a clear code every few hundred literals, which
-keeps codes 9 bits wide — simple and valid, if not the smallest file.
+Both video writers go through imageio: MP4 is H.264 from the ffmpeg binary that the
+imageio-ffmpeg wheel ships (nothing is fetched at run time), GIF is Pillow's encoder (adaptive
+palette, only the changed part of each frame stored). Both write atomically. Figures use
+matplotlib's Agg back-end and never open a window.
 """
 from __future__ import annotations
 
-import struct
+import warnings
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from envs.camera import SceneRenderer
+from envs.camera import SceneRenderer, write_atomically
 from envs.execution import SceneBatch, World
 
-_LEVELS = (6, 7, 6)  # red, green, blue levels of the palette (252 colours)
 
-
-def _palette() -> np.ndarray:
-    r, g, b = np.meshgrid(*(np.linspace(0, 255, n).round() for n in _LEVELS), indexing="ij")
-    colours = np.stack([r, g, b], -1).reshape(-1, 3).astype(np.uint8)
-    return np.concatenate([colours, np.zeros((256 - len(colours), 3), np.uint8)])
-
-
-def _quantise(rgb: np.ndarray) -> np.ndarray:
-    idx = [np.rint(rgb[..., c].astype(np.float32) / 255 * (n - 1)).astype(np.int32) for c, n in enumerate(_LEVELS)]
-    return ((idx[0] * _LEVELS[1] + idx[1]) * _LEVELS[2] + idx[2]).astype(np.uint8)
-
-
-def _lzw_literals(indices: np.ndarray) -> bytes:
-    """LZW code stream (minimum code size 8) made of literals only, 9-bit codes."""
-    clear, end, per_clear = 256, 257, 250
-    codes = []
-    flat = indices.reshape(-1).tolist()
-    for i in range(0, len(flat), per_clear):
-        codes.append(clear)
-        codes.extend(flat[i:i + per_clear])
-    codes.append(end)
-    bits = np.zeros(9 * len(codes), np.uint8)
-    arr = np.asarray(codes, np.uint16)
-    for b in range(9):  # little-endian bit order within each code, codes packed LSB first
-        bits[b::9] = (arr >> b) & 1
-    data = np.packbits(bits, bitorder="little").tobytes()
-    return b"".join(bytes([len(data[i:i + 255])]) + data[i:i + 255] for i in range(0, len(data), 255)) + b"\x00"
+def _check_frames(frames: np.ndarray, writer: str) -> np.ndarray:
+    """``frames`` as a uint8 ``[F, H, W, 3]`` array with F >= 1, or a one-line ValueError."""
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or 0 in frames.shape:
+        raise ValueError(f"{writer} expects uint8 frames [F, H, W, 3] with F, H, W >= 1, "
+                         f"got {frames.dtype} {frames.shape}")
+    return frames
 
 
 def write_gif(path: str | Path, frames: np.ndarray, frame_ms: int = 80) -> None:
-    """Write uint8 ``frames [F, H, W, 3]`` as a looping animated GIF, atomically."""
-    frames = np.asarray(frames)
-    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or len(frames) == 0:
-        raise ValueError(f"write_gif expects uint8 frames [F, H, W, 3], got {frames.dtype} {frames.shape}")
+    """Write uint8 ``frames [F, H, W, 3]`` as a looping animated GIF, ``frame_ms`` per frame,
+    atomically."""
+    frames = _check_frames(frames, "write_gif")
+    if not frame_ms >= 10:
+        raise ValueError(f"write_gif expects frame_ms >= 10 (GIF delays are in 10 ms steps), got {frame_ms}")
+    import imageio.v3 as iio
+
+    write_atomically(path, lambda tmp: iio.imwrite(tmp, frames, extension=".gif", plugin="pillow",
+                                                   duration=int(frame_ms), loop=0, optimize=True))
+
+
+def write_mp4(path: str | Path, frames: np.ndarray, fps: float = 12.5) -> None:
+    """Write uint8 ``frames [F, H, W, 3]`` as an H.264 MP4 at ``fps`` frames per second,
+    atomically. H.264 (4:2:0) needs even sides: an odd height or width gains one row or column
+    repeating the last."""
+    frames = _check_frames(frames, "write_mp4")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"write_mp4 expects a positive frame rate fps, got {fps}")
     _, h, w, _ = frames.shape
-    out = [b"GIF89a", struct.pack("<HHBBB", w, h, 0xF7, 0, 0), _palette().tobytes(),
-           b"!\xff\x0bNETSCAPE2.0\x03\x01\x00\x00\x00"]
-    for frame in frames:
-        out.append(b"!\xf9\x04\x04" + struct.pack("<H", max(1, frame_ms // 10)) + b"\x00\x00")
-        out.append(b"," + struct.pack("<HHHHB", 0, 0, w, h, 0) + b"\x08" + _lzw_literals(_quantise(frame)))
-    out.append(b";")
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(b"".join(out))
-    tmp.replace(path)
+    if h % 2 or w % 2:
+        frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+    import imageio.v3 as iio
+
+    def write(tmp: Path) -> None:
+        with warnings.catch_warnings():
+            # ffmpeg runs as a child process (fork, then exec at once), which JAX's fork warning
+            # does not tell apart from a fork that keeps running Python.
+            warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+            iio.imwrite(tmp, frames, extension=".mp4", plugin="FFMPEG", fps=float(fps), codec="libx264",
+                        pixelformat="yuv420p", quality=8, macro_block_size=1, ffmpeg_log_level="error")
+
+    write_atomically(path, write)
+
+
+def agg_figure(width: int, height: int, dpi: int = 100):
+    """A matplotlib ``Figure`` of ``width`` x ``height`` pixels on an off-screen Agg canvas (no
+    pyplot, so nothing global holds it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if width < 1 or height < 1:
+        raise ValueError(f"a figure needs a positive width and height in pixels, got {width} x {height}")
+    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def figure_rgb(fig) -> np.ndarray:
+    """Draw ``fig`` (from :func:`agg_figure`) and return its pixels, uint8 ``[H, W, 3]``."""
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
 def render_rollout(world: World, scenes: SceneBatch, qpos: np.ndarray, episode: int = 0, size: int = 256,

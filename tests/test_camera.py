@@ -75,12 +75,15 @@ def test_renderer_rejects_bad_sizes():
 
 
 def test_write_png_is_atomic_and_valid(tmp_path):
+    import imageio.v3 as iio
+
     img = np.random.default_rng(0).integers(0, 255, (7, 5, 3), dtype=np.uint8)
     out = tmp_path / "x.png"
     camera.write_png(out, img)
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     assert int.from_bytes(data[16:20], "big") == 5 and int.from_bytes(data[20:24], "big") == 7
+    np.testing.assert_array_equal(iio.imread(out), img)  # lossless
     assert list(tmp_path.iterdir()) == [out]
     with pytest.raises(ValueError, match="H, W, 3"):
         camera.write_png(out, img[..., 0])

@@ -96,3 +96,15 @@ def test_every_command_help_describes_every_option_and_writes_nothing(tmp_path, 
         undescribed = [a.option_strings for a in parsers[0]._actions if a.option_strings and not a.help]
         assert not undescribed, f"{name}: options without help: {undescribed}"
     assert not list(tmp_path.iterdir())
+
+
+def test_progress_off_a_terminal_prints_a_line_per_quarter_of_the_work(capsys):
+    from dmo_jax.progress import Progress
+
+    progress = Progress("train ebm", 500, initial=100)
+    for done in range(101, 501):
+        progress.update(done, f"loss {1 / done:.4f}")
+    progress.close()
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" (")[0] for line in lines] == [f"train ebm: {n}/500" for n in (125, 250, 375, 500)]
+    assert lines[-1].endswith("loss 0.0020")

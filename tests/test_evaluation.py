@@ -1,5 +1,5 @@
 """Success evaluation of learned methods: bin/train_all -> bin/evaluate end to end on
-the tiny preset, sweeps, JSON, visualisations (the GIF decodes to the rendered frames)."""
+the tiny preset, sweeps, JSON, visualisations (a figure and an MP4 per episode)."""
 import json
 import subprocess
 import sys
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dmo_jax import visualize, workflow
+from dmo_jax import workflow
 from dmo_jax.config import get_preset
-from envs import dataset, video
+from envs import dataset
 from envs.tasks import get_task
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,9 +57,9 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
         assert all(0 <= c < 2 for c in r["candidate_used"])
     assert payload["task"] == TASK and payload["episodes"] == 12
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
-    pngs, gifs = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.gif"))
-    assert len(pngs) == len(gifs) == 12 and any("_sort_n2_" in p.name for p in pngs)
-    assert gifs[0].read_bytes()[:6] == b"GIF89a"
+    pngs, mp4s = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.mp4"))
+    assert len(pngs) == len(mp4s) == 12 and any("_sort_n2_" in p.name for p in pngs)
+    assert mp4s[0].read_bytes()[4:8] == b"ftyp"  # an MP4 container
 
 
 def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
@@ -124,70 +124,3 @@ def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
     proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(tmp_path), check=False)
     assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
-
-
-def _decode_gif_frames(data: bytes, shape) -> list[np.ndarray]:
-    """A minimal GIF decoder (global palette, LZW) to check what write_gif wrote."""
-    palette = np.frombuffer(data[13:13 + 768], np.uint8).reshape(256, 3)
-    frames, pos = [], 13 + 768
-    while data[pos] != 0x3B:
-        if data[pos] == 0x21:  # extension: skip its sub-blocks
-            pos += 2
-            while data[pos]:
-                pos += data[pos] + 1
-            pos += 1
-            continue
-        assert data[pos] == 0x2C
-        pos += 10
-        min_size = data[pos]
-        pos += 1
-        stream = b""
-        while data[pos]:
-            stream += data[pos + 1:pos + 1 + data[pos]]
-            pos += data[pos] + 1
-        pos += 1
-        bits = np.unpackbits(np.frombuffer(stream, np.uint8), bitorder="little")
-        clear, end = 1 << min_size, (1 << min_size) + 1
-        width, table, out, prev, i = min_size + 1, None, [], None, 0
-        while True:
-            code = int(sum(int(bits[i + b]) << b for b in range(width)))
-            i += width
-            if code == clear:
-                table, width, prev = {k: [k] for k in range(clear)}, min_size + 1, None
-                continue
-            if code == end:
-                break
-            entry = table[code] if code in table else table[prev] + [table[prev][0]]
-            out.extend(entry)
-            if prev is not None:
-                table[len(table) + 2] = table[prev] + [entry[0]]
-                if len(table) + 2 == 1 << width and width < 12:
-                    width += 1
-            prev = code
-        frames.append(palette[np.asarray(out)].reshape(shape))
-    return frames
-
-
-def test_gif_round_trip(tmp_path):
-    rng = np.random.default_rng(0)
-    frames = rng.integers(0, 256, (3, 20, 33, 3), dtype=np.uint8)
-    path = tmp_path / "x.gif"
-    video.write_gif(path, frames)
-    decoded = _decode_gif_frames(path.read_bytes(), (20, 33, 3))
-    assert len(decoded) == 3
-    steps = np.array([255 / 5, 255 / 6, 255 / 5])  # palette spacing per channel
-    assert np.all(np.abs(np.stack(decoded).astype(int) - frames) <= steps / 2 + 1)
-    with pytest.raises(ValueError, match="uint8 frames"):
-        video.write_gif(path, frames.astype(np.float32))
-
-
-def test_trajectory_overlay_draws_the_chosen_path_in_white():
-    rgb = np.zeros((32, 32, 3), np.uint8)
-    cands = np.zeros((3, 101, 11), np.float32)
-    cands[:, :, 0] = np.linspace(-0.5, 0.5, 101)  # horizontal line through the centre
-    cands[1, :, 1] = 0.5
-    picture = visualize.trajectory_overlay(rgb, cands, chosen=1)
-    assert picture.shape == (128, 128, 3)
-    row = int(round((0.75 * 31 + 0.5) * 4 - 0.5))
-    assert (picture[row, 40:90] == 255).all()  # chosen candidate (v = 0.5) in white
-    assert picture[:, :, 2].max() == 255  # the lowest-energy candidate in blue

@@ -74,6 +74,17 @@ def test_ebm_loss_decreases(task_data, vae_params, tmp_path):
     _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
     assert _decreases(_losses(tmp_path))
     assert 0.0 <= summary["heldout_top1"] <= 1.0 and 0.0 <= summary["heldout_depth_top1"] <= 1.0
+    # the record for people: TensorBoard event files a TensorBoard reader loads, and a plot
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(tmp_path / "tensorboard"))
+    events.Reload()
+    loss = events.Scalars("train/loss")
+    assert [e.step for e in loss] == list(range(1, 41))
+    np.testing.assert_allclose([e.value for e in loss], _losses(tmp_path), rtol=1e-6)
+    assert [e.step for e in events.Scalars("heldout/top1")][-1] == 40
+    png = (tmp_path / "metrics.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 5000
 
 
 def test_dmo_loss_decreases(task_data, vae_params, tmp_path):

@@ -315,6 +315,8 @@ def cost_main(argv: list[str] | None = None) -> None:
 
 
 BENCHMARK_SECTIONS = ("encoder", "train-step", "execution", "predict", "data")
+#: Sections run only when asked for (``--only``).
+EXTRA_SECTIONS = ("device",)
 
 
 def benchmark_main(argv: list[str] | None = None) -> None:
@@ -323,12 +325,15 @@ def benchmark_main(argv: list[str] | None = None) -> None:
     from envs.cli import check_output_file, positive
 
     parser = argparse.ArgumentParser(description="Benchmarks of dmo-jax (see BENCHMARKS.md).")
-    parser.add_argument("--only", choices=BENCHMARK_SECTIONS,
+    parser.add_argument("--only", choices=BENCHMARK_SECTIONS + EXTRA_SECTIONS,
                         help="one section (default: every section, each in its own process so that its peak "
                         "memory is its own). encoder: one image's encoder forward; train-step: VAE/EBM/DMO "
                         "optimiser steps; execution: physics back-ends (native MuJoCo, MJX) on the scripted "
                         "pick-up; predict: predict() latency per n and per method, with and without F reuse; "
-                        "data: demonstration generation (expert, physics, rendering)")
+                        "data: demonstration generation (expert, physics, rendering); device (only when asked "
+                        "for): the accelerator check, predict() of the cpu and paper presets at n = 8 and 64, a "
+                        "paper-preset training step of each model and 100 MJX episodes (on a CPU: the cpu "
+                        "preset's predict, tiny training steps and 8 episodes)")
     parser.add_argument("--episodes", type=int, default=64, help="episodes per batch (execution, data)")
     parser.add_argument("--preset", choices=list(PRESETS),
                         help="default: paper for encoder, cpu for train-step and predict")
@@ -376,6 +381,8 @@ def _benchmark_section(section: str, args) -> dict:
         from envs.benchmark import benchmark_execution
 
         result = {"rows": benchmark_execution(args.episodes, min(args.repeats, 3))}
+    elif section == "device":
+        result = benchmark.device_benchmark(repeats=args.repeats)
     else:
         from envs.benchmark import benchmark_data_generation
 
@@ -414,6 +421,8 @@ def _format_benchmark(section: str, result: dict) -> str:
         text = benchmark.format_predict_benchmark(result)
     elif section == "execution":
         text = "execution\n" + "\n".join(json.dumps(r) for r in result["rows"])
+    elif section == "device":
+        text = benchmark.format_device_benchmark(result)
     else:
         text = (f"data generation: {result['episodes']} episodes of {result['task']} at {result['image_size']}px in "
                 f"{result['seconds']:.1f} s = {result['episodes_per_s']:.2f} episodes/s")

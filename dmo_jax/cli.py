@@ -269,7 +269,10 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                   f"(execution {result['seconds']:.1f} s"
                   + (f", prediction {result['predict_seconds']:.1f} s; first-ranked motion "
                      f"{100 * result['first_error_m']:.1f} cm from the demonstration ("
-                     f"{100 * result['first_depth_error_m']:.1f} cm in depth), EBM's top bank motion "
+                     f"{100 * result['first_depth_error_m']:.1f} cm in depth"
+                     + (f"; its lowest point {100 * result['first_lowest_offset_m']:+.1f} cm above the "
+                        "demonstration's" if "first_lowest_offset_m" in result else "")
+                     + f"), EBM's top bank motion "
                      f"{100 * result['start_error_m']:.1f} cm, optimised motion ranked first in "
                      f"{result['optimised_first']:.0%} of scenes" + (
                          f"; the top {result['n']} lie {100 * result['mean_start_error_m']:.1f} cm from it, the "

@@ -91,7 +91,7 @@ def prediction_key(method: str, n: int, R: int) -> tuple:
 
 
 def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstrations: np.ndarray, intrinsics,
-                       image_size: int) -> dict:
+                       image_size: int, camera_pose: tuple | None = None) -> dict:
     """Where the ranked ``candidates [E, K, 101, 11]`` lie against the scenes' demonstrations,
     as mean 3-D position errors in metres (``losses.position_error``) averaged over episodes:
     ``first_error_m`` of the first-ranked candidate, ``start_error_m`` of the EBM's top bank
@@ -100,7 +100,10 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     pixel position shows); ``optimised_first``, the fraction of episodes whose first-ranked
     candidate is an optimised motion, not a start; and, for methods that optimise,
     ``mean_start_error_m`` / ``mean_optimised_error_m``, the mean error of the n starts and of
-    the optimised motions (for the DMO at R = 1: the EBM's top n before and after one refinement)."""
+    the optimised motions (for the DMO at R = 1: the EBM's top n before and after one refinement).
+    Given the camera's world ``camera_pose`` ``(position [3], rotation [3, 3])``,
+    ``first_lowest_offset_m``: how much higher the first-ranked motion's lowest point lies than the
+    demonstration's (signed, mean over episodes; what decides a press or a placement)."""
     import jax.numpy as jnp
 
     from .losses import position_error
@@ -119,6 +122,13 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     if (~is_start).any():
         out["mean_start_error_m"] = round(float(np.mean(start_errors)), 4)
         out["mean_optimised_error_m"] = round(float(np.mean(errors[~is_start])), 4)
+    if camera_pose is not None:
+        from .motion import vector_to_pose
+
+        position, rotation = (jnp.asarray(x, jnp.float32) for x in camera_pose)
+        lowest = lambda m: np.asarray(vector_to_pose(jnp.asarray(m, jnp.float32), position, rotation,  # noqa: E731
+                                                     jnp.asarray(intrinsics, jnp.float32), image_size)[0][..., 2]).min(-1)
+        out["first_lowest_offset_m"] = round(float(np.mean(lowest(candidates[:, 0]) - lowest(demonstrations))), 4)
     return out
 
 
@@ -168,7 +178,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
             label = f"{method}_n{n}" + ("" if R is None else f"_R{R}") if len(predictions) > 1 else ""
             save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
         diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
-                                         preset.image_size)
+                                         preset.image_size, (test.meta["camera_position"], test.meta["camera_rotation"]))
         results.append({"method": method, "n": n, "R": R, **result,
                         "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics,
                         **extra})

@@ -124,3 +124,20 @@ def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
     proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(tmp_path), check=False)
     assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down():
+    from dmo_jax.evaluation import motion_diagnostics
+    from dmo_jax.motion import pose_to_vector, time_grid
+
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 31.5], [0, 0, 1]], np.float32)
+    cam_pos = np.array([1.65, 0.0, 1.88], np.float32)
+    look = np.array([[0, -1, 0], [-0.5, 0, -0.866], [0.866, 0, -0.5]], np.float32)  # rows: camera x, y, z in world
+    cam_rot = look.T  # camera-to-world
+    t = time_grid()
+    path = np.stack([0.4 + 0.1 * t, 0.05 * t, 0.9 - 0.1 * np.sin(np.pi * t)], axis=-1)  # dips to 0.8 m
+    vec = lambda p: np.asarray(pose_to_vector(p, np.broadcast_to(np.eye(3), (101, 3, 3)), np.ones(101), t,
+                                              cam_pos, cam_rot, K, 64))
+    demo, raised = vec(path), vec(path + np.array([0, 0, 0.01]))
+    out = motion_diagnostics(demo[None, None], np.stack([raised, demo])[None], demo[None], K, 64, (cam_pos, cam_rot))
+    assert out["first_lowest_offset_m"] == pytest.approx(0.01, abs=1e-4)

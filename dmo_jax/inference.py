@@ -399,8 +399,8 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       ValueError: one line saying what is wrong and what was expected — unknown method or
         preset, image not ``[S, S, 4]`` / ``[B, S, S, 4]`` floating-point in [0, 1], bank not
         ``[N, 101, 11]`` floating-point, NaN or inf in image or bank, n outside [1, N],
-        R < 0, a coarse ranking keeping fewer than n or more than N, a key that is not one PRNG key, parameters missing or of another preset or
-        variant, an empty image batch; and non-finite energies or motions in the result
+        R < 0, a coarse ranking keeping fewer than n or more than N, a key that is not one
+        PRNG key, parameters missing or of another preset or variant, an empty image batch; and non-finite energies or motions in the result
         (NaN or inf parameters, or motions so large the networks overflow; the check reads
         the result on the host, 0.02 ms for 10 images on 2 CPU cores). Inside the caller's
         ``jax.jit`` the arrays are tracers: shapes and dtypes are still checked, values (NaN,

@@ -286,6 +286,11 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     rows = [(label, {t: r["success_rate"] for t, r in per_task.items()}) for label, per_task in by_row.items()]
     results = [r for per_task in by_row.values() for r in per_task.values()]
     print(evaluation.success_table(rows))
+    if args.save_viz:
+        from dmo_jax.visualize import success_chart
+        from envs.camera import write_png
+
+        write_png(Path(args.save_viz) / "success.png", success_chart(dict(rows)))
     if args.json:
         episodes, successes = sum(r["episodes"] for r in results), sum(r["successes"] for r in results)
         method = methods[0] if len(methods) == 1 else methods

@@ -122,3 +122,26 @@ def save_episode_visuals(viz_dir, task_name: str, test, candidates: np.ndarray, 
             write_mp4(stem.with_suffix(".mp4"), frames)
         else:
             write_gif(stem.with_suffix(".gif"), frames)
+
+
+def success_chart(rows: dict[str, dict[str, float]], width: int = 900, height: int = 420) -> np.ndarray:
+    """A bar chart ``uint8 [height, width, 3]`` of success per task (groups) and method (bars):
+    ``rows`` maps a row label (``bin/evaluate``'s) to ``{task name: success rate in [0, 1]}``."""
+    from envs.evaluation import ABBREVIATIONS, TASK_ORDER
+    from envs.video import agg_figure, figure_rgb
+
+    tasks = [t for t in TASK_ORDER if any(t in per_task for per_task in rows.values())]
+    if not tasks:
+        raise ValueError("success_chart needs at least one task's success rate")
+    fig = agg_figure(width, height)
+    ax = fig.add_subplot()
+    bar = 0.8 / len(rows)
+    for i, (label, per_task) in enumerate(rows.items()):
+        x = [k + (i - (len(rows) - 1) / 2) * bar for k, t in enumerate(tasks) if t in per_task]
+        ax.bar(x, [100 * per_task[t] for t in tasks if t in per_task], bar, label=label)
+    ax.set_xticks(range(len(tasks)), [ABBREVIATIONS[t] for t in tasks])
+    ax.set(ylabel="success (%)", ylim=(0, 100), title="success per task")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    return figure_rgb(fig)

@@ -57,9 +57,13 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
         assert all(0 <= c < 2 for c in r["candidate_used"])
     assert payload["task"] == TASK and payload["episodes"] == 12
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
-    pngs, mp4s = sorted((tmp_path / "viz").glob("*.png")), sorted((tmp_path / "viz").glob("*.mp4"))
+    pngs, mp4s = sorted((tmp_path / "viz").glob(f"{TASK}_*.png")), sorted((tmp_path / "viz").glob("*.mp4"))
     assert len(pngs) == len(mp4s) == 12 and any("_sort_n2_" in p.name for p in pngs)
     assert mp4s[0].read_bytes()[4:8] == b"ftyp"  # an MP4 container
+    import imageio.v3 as iio
+
+    chart = iio.imread(tmp_path / "viz" / "success.png")  # the bar chart of success per method and task
+    assert chart.shape[:2] == (420, 900) and chart.std() > 10
 
 
 def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):

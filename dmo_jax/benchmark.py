@@ -300,12 +300,17 @@ def training_step_benchmark(preset, repeats: int = 5) -> dict:
     p = get_preset(preset) if isinstance(preset, str) else preset
     s = p.image_size
     rng = np.random.default_rng(0)
-    n = max(p.train.vae_batch, p.train.ebm_batch, p.train.dmo_batch)
+    # enough motions for every batch and for the recipe's near negatives (random "neighbours": the
+    # cost does not depend on which motions they are)
+    n = max(p.train.vae_batch, p.train.ebm_batch, p.train.dmo_batch, p.train.near_pool + 1)
     motions = np.concatenate(
         [rng.uniform(-1, 1, (n, 101, 10)), np.broadcast_to(time_grid()[None, :, None], (n, 101, 1))], axis=-1)
-    data = MotionDataset(rng.uniform(0, 1, (n, s, s, 4)).astype(np.float32), motions.astype(np.float32))
+    neighbours = np.stack([rng.permutation(np.delete(np.arange(n), i))[:p.train.near_pool] for i in range(n)])
+    data = MotionDataset(rng.uniform(0, 1, (n, s, s, 4)).astype(np.float32), motions.astype(np.float32),
+                         neighbours.astype(np.int32))
+    camera = (np.array([[s, 0, s / 2], [0, s, s / 2], [0, 0, 1]], np.float32), s)
     vae_params = training.VAENet.from_preset(p).init(jax.random.key(0))
-    specs = {"vae": (training.vae_spec(p), None), "ebm": (training.ebm_spec(p), vae_params),
+    specs = {"vae": (training.vae_spec(p), None), "ebm": (training.ebm_spec(p, camera=camera), vae_params),
              "dmo": (training.dmo_spec(p), vae_params)}
     result = {"preset": p.name, "image_size": s, "models": {}}
     total = 0.0
@@ -316,7 +321,7 @@ def training_step_benchmark(preset, repeats: int = 5) -> dict:
         step = jax.jit(training.make_train_step(spec, tx))
         times = []
         for i in range(repeats + 1):
-            batch = data.batch(0, i, spec.batch_size)
+            batch = data.batch(0, i, spec.batch_size, near=spec.near)
             t = time.perf_counter()
             state, metrics = step(state, batch, jax.random.key(i), extra)
             jax.block_until_ready(metrics)

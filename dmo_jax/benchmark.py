@@ -476,11 +476,12 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
 def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> list[dict]:
     """One image's bank scoring (:func:`~dmo_jax.inference.top_candidates`, top ``n``) in full and
-    in two stages (the default :class:`~dmo_jax.inference.CoarseRanking`), timed round-robin, with
+    in two stages (:class:`~dmo_jax.inference.CoarseRanking`, keeping 64 and 32), timed round-robin, with
     XLA's FLOP count of each (compiled with the bank in one chunk: XLA counts a loop's body once)."""
     from .inference import CoarseRanking, _top_candidates_jit, top_candidates
 
-    paths = {"full": None, "coarse {}/{}".format(*CoarseRanking()): CoarseRanking()}
+    coarse = (CoarseRanking(), CoarseRanking(keep=32))
+    paths = {"full": None, **{"coarse {}/{}".format(*c): c for c in coarse}}
     runs = {name: (lambda c=c: top_candidates(models, image, bank, preset=p, n=n, coarse=c).motions)
             for name, c in paths.items()}
     times = {name: [] for name in paths}

@@ -57,17 +57,16 @@ def write_events(records: list[dict], out_dir: str | Path) -> None:
 
 
 def plot_metrics(records: list[dict], path: str | Path, title: str) -> None:
-    """``path`` (PNG): the training loss, and the held-out metrics, against the step."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """``path`` (PNG, written atomically): the training loss, and the held-out metrics, against the step."""
+    from envs.camera import write_atomically
+    from envs.video import agg_figure
 
     curves = _curves(records)
     heldout = {k[len("heldout_"):]: v for k, v in curves.items() if k.startswith("heldout_")}
     panels = [("training loss", {"loss": curves.get("loss", [])})] + ([("held-out", heldout)] if heldout else [])
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.6), squeeze=False)
-    for ax, (name, lines) in zip(axes[0], panels):
+    fig = agg_figure(500 * len(panels), 360)
+    for i, (name, lines) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), i + 1)
         for label, points in lines.items():
             if points:
                 ax.plot(*zip(*points), marker="o" if len(points) < 10 else None, label=label)
@@ -77,11 +76,7 @@ def plot_metrics(records: list[dict], path: str | Path, title: str) -> None:
             ax.legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
+    write_atomically(path, lambda tmp: fig.savefig(tmp))
 
 
 def export(run_dir: str | Path, title: str) -> None:

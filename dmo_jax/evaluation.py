@@ -45,11 +45,7 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     bank = jax.numpy.asarray(bank)
     n_max = max(n for n, _ in settings)
     t0 = time.perf_counter()
-    # F is dropped (recomputed by each refine call): kept for every image it would take 64 MB per
-    # image at the paper preset
-    rankings = [top_candidates(models, x, bank, preset=preset, n=n_max, coarse=coarse)._replace(feature=None)
-                for _, x in _padded_batches(images, batch)]
-    jax.block_until_ready(rankings)
+    rankings = _rankings(models, preset, images, bank, n_max, batch, coarse)
     seconds = {"bank": time.perf_counter() - t0}
     starts = np.concatenate([np.asarray(r.motions) for r in rankings])[:e]
     predictions = {}
@@ -70,16 +66,25 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     return starts, predictions, seconds
 
 
+def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: int,
+              coarse: CoarseRanking | None = None) -> list:
+    """The bank's top ``n`` for ``images`` in batches of ``batch`` (the last one padded), computed
+    before returning. F is dropped (each refine call recomputes it): kept for every image it would
+    take 64 MB per image at the paper preset."""
+    rankings = [top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
+                for _, x in _padded_batches(images, batch)]
+    return jax.block_until_ready(rankings)
+
+
 def coarse_recall(models, preset: Preset, images: np.ndarray, bank: np.ndarray, starts: np.ndarray,
                   batch: int = 10) -> tuple[np.ndarray, float]:
     """How much of the full bank scoring a coarse one kept: per image of ``images [E, S, S, 4]``,
     the fraction of the full ranking's top n that ``starts [E, n, 101, 11]`` (a coarse ranking's)
     holds, ``float [E]``; and the full scoring's wall time in seconds."""
-    n, bank = starts.shape[1], jax.numpy.asarray(bank)
     t0 = time.perf_counter()
-    full = np.concatenate([np.asarray(top_candidates(models, x, bank, preset=preset, n=n).motions)
-                           for _, x in _padded_batches(images, min(batch, len(images)))])[:len(images)]
+    rankings = _rankings(models, preset, images, jax.numpy.asarray(bank), starts.shape[1], min(batch, len(images)))
     seconds = time.perf_counter() - t0
+    full = np.concatenate([np.asarray(r.motions) for r in rankings])[:len(images)]
     same = (full[:, :, None] == starts[:, None]).all(axis=(-1, -2)).any(axis=2)  # [E, n]: kept by the coarse one
     return same.mean(axis=1), seconds
 

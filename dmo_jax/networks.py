@@ -203,10 +203,10 @@ class MotionTrunk(nn.Module):
 
 def _flatten_motions(motions, any_length: bool = False):
     """``[..., T, 11] -> ([M, T, 11], leading shape)``; T must be 101 unless ``any_length``."""
-    steps = motions.shape[-2] if any_length and motions.ndim >= 2 and motions.shape[-2] > 0 else NUM_STEPS
-    if motions.shape[-2:] != (steps, POSE_DIM):
+    steps_ok = motions.ndim >= 2 and (motions.shape[-2] > 0 if any_length else motions.shape[-2] == NUM_STEPS)
+    if not steps_ok or motions.shape[-1] != POSE_DIM:
         raise ValueError(f"motions must be [..., {'T' if any_length else NUM_STEPS}, {POSE_DIM}], got {motions.shape}")
-    return motions.reshape((-1, steps, POSE_DIM)), motions.shape[:-2]
+    return motions.reshape((-1,) + motions.shape[-2:]), motions.shape[:-2]
 
 
 def _check_feature(feature, head: HeadConfig):

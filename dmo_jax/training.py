@@ -455,7 +455,7 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
             if evaluate:
                 record.update({f"heldout_{k}": float(v) for k, v in spec.eval_fn(state.params, extra).items()})
             _append_jsonl(metrics_path, record)
-            if evaluate:
+            if evaluate and done < end:  # the last one is exported after the loop
                 run_metrics.export(workdir, title)
             if progress:
                 progress.update(done, f"loss {last['loss']:.4f}")

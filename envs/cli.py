@@ -297,18 +297,16 @@ def generate_data_main(argv: list[str] | None = None) -> None:
     if args.workers is not None:
         positive("--workers", args.workers)
     names = task_names(args.task)
-    from envs.dataset import size_in_name
+    import time
+
+    from envs.dataset import DatasetError, generate_split, load_split, size_in_name
+    from envs.tasks import get_task
 
     named = size_in_name(args.out) if args.out else None
     if named is not None and named != args.image_size:
         fail(f"--out {args.out} is named for {named}px images but --image-size is {args.image_size}; "
              f"pass --image-size {named} or another --out")
     out = make_output_dir(args.out or default_data_dir(args.image_size), "--out")
-
-    import time
-
-    from envs.dataset import DatasetError, generate_split, load_split
-    from envs.tasks import get_task
 
     for name in names:
         task = get_task(name, args.image_size)

@@ -20,7 +20,7 @@ _EXPORTS = {
     "Prediction": "inference",
     "Ranking": "inference",
     "OptimizerSettings": "inference",
-    "CoarseRanking": "inference",
+    "CoarseRanking": "config",
     "METHODS": "inference",
     "get_preset": "config",
     "PRESETS": "config",

@@ -123,15 +123,17 @@ def _summary_table(summaries: dict) -> str:
 
 
 def parse_coarse(text: str | None):
-    """``"4,64"`` -> ``CoarseRanking(stride=4, keep=64)``; None -> None."""
-    from dmo_jax.inference import CoarseRanking
+    """``"4,64"`` -> ``CoarseRanking(stride=4, keep=64)``; ``"full"`` -> None; None -> ``"preset"``."""
+    from dmo_jax.config import CoarseRanking
 
     if text is None:
+        return "preset"
+    if text == "full":
         return None
     try:
         stride, keep = (int(v) for v in text.split(","))
     except ValueError:
-        raise ValueError(f"--coarse must look like STRIDE,KEEP (e.g. 4,64), got {text!r}") from None
+        raise ValueError(f"--coarse must be STRIDE,KEEP (e.g. 4,64) or full, got {text!r}") from None
     if stride < 1 or keep < 1:
         raise ValueError(f"--coarse {text}: STRIDE and KEEP must be positive")
     return CoarseRanking(stride, keep)
@@ -188,10 +190,13 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                         "other values)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the methods' random draws (default 0)")
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
-    parser.add_argument("--coarse", metavar="STRIDE,KEEP",
-                        help="score the bank in two stages (dmo_jax.inference.CoarseRanking): every motion on every "
-                        "STRIDE-th pose, then the KEEP best on all poses, e.g. 4,64; the bank is also scored in "
-                        "full, untimed, to report how many of its top n the coarse scoring kept (coarse_recall)")
+    parser.add_argument("--coarse", metavar="STRIDE,KEEP|full",
+                        help="how the bank is scored: in two stages (dmo_jax.config.CoarseRanking), every motion on "
+                        "every STRIDE-th pose, then the KEEP best on all poses, e.g. 4,64; or full, every motion on "
+                        "all poses (default: the preset's, cpu 4,64 and paper full)")
+    parser.add_argument("--coarse-recall", action="store_true",
+                        help="also score the bank in full, untimed, and report how many of its top n the coarse "
+                        "scoring kept (coarse_recall)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
     parser.add_argument("--save-viz", metavar="DIR", help="per episode (the first 10): a trajectories figure (PNG) and a rollout video (MP4)")
     args = parser.parse_args(argv)
@@ -216,8 +221,9 @@ def evaluate_main(argv: list[str] | None = None) -> None:
         sweep, coarse = parse_sweep(args.sweep), parse_coarse(args.coarse)
     except ValueError as err:
         _fail(str(err))
-    if coarse and not learned:
-        _fail("--coarse needs a learned method (it changes how the EBM scores the bank)")
+    if (args.coarse or args.coarse_recall) and not learned:
+        _fail(f"--{'coarse' if args.coarse else 'coarse-recall'} needs a learned method (it is about how the EBM "
+              "scores the bank)")
     if sweep and len(learned) < len(methods):
         _fail(f"--sweep needs learned methods only, not {', '.join(m for m in methods if m not in learned)}")
     if sweep and (min(sweep[1]) < (1 if sweep[0] == "n" else 0)):
@@ -258,7 +264,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
                 found += evaluate_methods(
                     name, learned, preset=preset, workdir=args.workdir, data_root=data, settings=settings,
                     episodes=args.episodes, backend=args.backend, negatives=args.negatives,
-                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse)
+                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse,
+                    measure_recall=args.coarse_recall)
         except (DatasetError, training.TrainingError, ValueError) as err:
             _fail(str(err))
         for result in found:

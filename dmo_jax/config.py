@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 #: Architecture variants of paper Table 2.
 VARIANTS = ("concat", "wo_concat", "gap", "vit")
@@ -197,6 +198,16 @@ def recipe_settings(recipe: str, train: TrainConfig) -> dict:
     raise ValueError(f"unknown recipe {recipe!r}; valid recipes: {', '.join(RECIPES)}")
 
 
+class CoarseRanking(NamedTuple):
+    """A two-stage bank scoring (``dmo_jax.inference.top_candidates``): every bank motion is
+    scored on its poses ``0, stride, 2 stride, ...`` (101 poses at stride 4: 26, about a quarter
+    of the head's work and a sixteenth of its attention), the ``keep`` lowest are scored again on
+    all 101 poses, and the ``n`` lowest of those are kept."""
+
+    stride: int = 4
+    keep: int = 64
+
+
 @dataclass(frozen=True)
 class Preset:
     name: str
@@ -207,6 +218,10 @@ class Preset:
     train: TrainConfig = field(default_factory=TrainConfig)
     recipe: str = "paper"  # one of RECIPES; set with with_recipe, which also sets its TrainConfig fields
     # (the presets: cpu "bank", paper and tiny "paper")
+    # How prediction scores the bank by default: None scores every motion on all its poses (the
+    # paper's); a CoarseRanking scores it in two stages where it keeps more than n and fewer than
+    # the bank's motions.
+    coarse: CoarseRanking | None = None
 
     def __post_init__(self):
         if self.encoder.out_dim != self.head.width:  # (+1 channel of depth with head.depth_cue)
@@ -295,6 +310,10 @@ CPU = Preset(
     # prediction sees") the DMO solved 70.2 % on average against the paper recipe's 54.2 %, and
     # 57.6 % with the near negatives alone (without graded targets); ahead on eight tasks, behind
     # on push_button (64 against 69 %).
+    # Coarse bank scoring: on the nine tasks x 300 test scenes with these networks it kept the
+    # full scoring's top 8 in every scene (so the same successes) at 2.9x less wall time
+    # (BENCHMARKS.md, "Coarse-to-fine bank scoring").
+    coarse=CoarseRanking(stride=4, keep=64),
 ).with_recipe("bank")
 
 TINY = Preset(

@@ -16,7 +16,7 @@ import numpy as np
 
 from .config import Preset
 from .data import network_image
-from .inference import METHODS_USING_R, CoarseRanking, OptimizerSettings, refine, top_candidates
+from .inference import METHODS_USING_R, CoarseRanking, OptimizerSettings, refine, resolve_coarse, top_candidates
 from .motion import Z
 
 
@@ -31,10 +31,10 @@ def _padded_batches(images: np.ndarray, batch: int):
 
 def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.ndarray, bank: np.ndarray,
                      settings: Sequence[tuple[int, int]], seed: int = 0, batch: int = 10,
-                     optimizer: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None = None):
+                     optimizer: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None | str = "preset"):
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` for network
     ``images [E, S, S, 4]``, scoring the bank once (its top ``max n``; a smaller n takes the
-    first n of them; ``coarse``: in two stages, :class:`~dmo_jax.inference.CoarseRanking`).
+    first n of them; ``coarse`` as in :func:`~dmo_jax.inference.predict`).
 
     Returns ``(starts, predictions, seconds)``: the EBM's top ``max n`` bank motions per image
     ``[E, max n, 101, 11]``; per :func:`prediction_key` the ranked ``(candidates [E, K, 101, 11],
@@ -67,7 +67,7 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
 
 
 def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: int,
-              coarse: CoarseRanking | None = None) -> list:
+              coarse: CoarseRanking | None | str = "preset") -> list:
     """The bank's top ``n`` for ``images`` in batches of ``batch`` (the last one padded), computed
     before returning. F is dropped (each refine call recomputes it): kept for every image it would
     take 64 MB per image at the paper preset."""
@@ -82,7 +82,8 @@ def coarse_recall(models, preset: Preset, images: np.ndarray, bank: np.ndarray, 
     the fraction of the full ranking's top n that ``starts [E, n, 101, 11]`` (a coarse ranking's)
     holds, ``float [E]``; and the full scoring's wall time in seconds."""
     t0 = time.perf_counter()
-    rankings = _rankings(models, preset, images, jax.numpy.asarray(bank), starts.shape[1], min(batch, len(images)))
+    rankings = _rankings(models, preset, images, jax.numpy.asarray(bank), starts.shape[1], min(batch, len(images)),
+                         coarse=None)
     seconds = time.perf_counter() - t0
     full = np.concatenate([np.asarray(r.motions) for r in rankings])[:len(images)]
     same = (full[:, :, None] == starts[:, None]).all(axis=(-1, -2)).any(axis=2)  # [E, n]: kept by the coarse one
@@ -141,14 +142,16 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
                      settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int | None = None,
                      backend: str = "auto",
                      negatives: str = "in-data+vae", dmo_train_iters: int | None = None, seed: int = 0,
-                     viz_dir=None, coarse: CoarseRanking | None = None) -> list[dict]:
+                     viz_dir=None, coarse: CoarseRanking | None | str = "preset",
+                     measure_recall: bool = False) -> list[dict]:
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
     ``episodes`` test images of a task (the bank scored once for all) and execute.
 
     Returns one result per setting and method (settings outer; a method that ignores R once
     per n, with ``R`` None): the ``run_episodes`` result plus ``method``, ``n``, ``R``,
-    ``predict_seconds`` (bank scoring + the method) and :func:`motion_diagnostics`. With a
-    ``coarse`` ranking (:class:`~dmo_jax.inference.CoarseRanking`) the bank is also scored in
+    ``predict_seconds`` (bank scoring + the method), :func:`motion_diagnostics` and ``coarse``,
+    the bank scoring used (``coarse`` as in :func:`~dmo_jax.inference.predict`; ``[stride,
+    keep]`` or None). With ``measure_recall`` and a coarse scoring the bank is also scored in
     full, untimed, for ``coarse_recall`` (:func:`coarse_recall`, mean over the scenes) and
     ``full_bank_seconds``.
     """
@@ -168,11 +171,12 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed,
                                                     coarse=coarse)
-    extra = {}
-    if coarse is not None:
+    coarse = resolve_coarse(preset, coarse, max(n for n, _ in settings), len(bank))
+    extra = {"coarse": None if coarse is None else list(coarse)}
+    if measure_recall and coarse is not None:
         recall, full_seconds = coarse_recall(models, preset, images, bank, starts)
-        extra = {"coarse": list(coarse), "coarse_recall": round(float(recall.mean()), 4),
-                 "bank_seconds": round(seconds["bank"], 2), "full_bank_seconds": round(full_seconds, 2)}
+        extra.update({"coarse_recall": round(float(recall.mean()), 4), "bank_seconds": round(seconds["bank"], 2),
+                      "full_bank_seconds": round(full_seconds, 2)})
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)
     results = []
     for (method, n, R), (cands, energies) in predictions.items():

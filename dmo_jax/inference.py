@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import Preset, get_preset
+from .config import CoarseRanking, Preset, get_preset
 from .losses import dmo_unroll
 from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, describe_array, matrix_to_rot6d,
                      rot6d_to_matrix)
@@ -63,17 +63,6 @@ class OptimizerSettings:
     dfo_iters: int = 3
     dfo_noise: float = 0.02  # initial std of the perturbation, in motion units
     dfo_shrink: float = 0.5
-
-
-class CoarseRanking(NamedTuple):
-    """A two-stage bank scoring (:func:`top_candidates`): every bank motion is scored on its
-    poses ``0, stride, 2 stride, ...`` (101 poses at stride 4: 26, about a quarter of the head's
-    work and a sixteenth of its attention), the ``keep`` lowest are scored again on all 101
-    poses, and the ``n`` lowest of those are kept. ``None`` where a call takes one: every
-    motion is scored on all its poses (the paper's)."""
-
-    stride: int = 4
-    keep: int = 64
 
 
 class Models(NamedTuple):
@@ -141,7 +130,8 @@ def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, 
         raise ValueError(f"R must be >= 0, got {R}")
     if coarse is not None:
         if not isinstance(coarse, CoarseRanking) or not all(_is_integer(v) for v in coarse):
-            raise ValueError(f"coarse must be a CoarseRanking(stride, keep) of integers or None, got {coarse!r}")
+            raise ValueError(f"coarse must be a CoarseRanking(stride, keep) of integers, None or 'preset', "
+                             f"got {coarse!r}")
         if not 1 <= coarse.stride < NUM_STEPS:
             raise ValueError(f"coarse.stride must be in [1, {NUM_STEPS - 1}], got {coarse.stride}")
         if not n <= coarse.keep <= bank_shape[0]:
@@ -372,7 +362,8 @@ def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, setti
 
 def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *, preset: Preset,
             method: str = "dmo", n: int = 8, R: int = 1, chunk: int | None = None,
-            settings: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None = None) -> Prediction:
+            settings: OptimizerSettings = OptimizerSettings(),
+            coarse: CoarseRanking | None | str = "preset") -> Prediction:
     """Predict motions for ``image`` with the trained networks of one task.
 
     Args:
@@ -389,8 +380,10 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       R: DMO refinements (``dmo`` only; R = 0 returns the EBM's ranking).
       chunk: bank motions scored at once per image (bounds memory); None: :func:`default_chunk`.
       settings: the baselines' step sizes and iteration counts.
-      coarse: a :class:`CoarseRanking` scores the bank in two stages (less work; it may miss
-        motions the full scoring would keep); None: every motion on all its poses.
+      coarse: a :class:`~dmo_jax.config.CoarseRanking` scores the bank in two stages (less
+        work; it may miss motions the full scoring would keep); None: every motion on all its
+        poses; ``"preset"`` (default): the preset's ``coarse`` where it keeps more than n and
+        fewer than N motions (the ``cpu`` preset: stride 4, keep 64), else every motion.
 
     Returns:
       :class:`Prediction` — best motion, ranked candidates, energies.
@@ -406,15 +399,15 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
         ``jax.jit`` the arrays are tracers: shapes and dtypes are still checked, values (NaN,
         range, the result) are not.
     """
-    preset, image, bank, key, chunk = _checked_call(models, preset, method, image, bank, key, n, R, chunk,
-                                                    coarse=coarse)
+    preset, image, bank, key, chunk, coarse = _checked_call(models, preset, method, image, bank, key, n, R, chunk,
+                                                            coarse=coarse)
     return _finite(_predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
                                 R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings,
                                 coarse=coarse))
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
-                   chunk: int | None = None, coarse: CoarseRanking | None = None) -> Ranking:
+                   chunk: int | None = None, coarse: CoarseRanking | None | str = "preset") -> Ranking:
     """Step 2 of :func:`predict` alone: a :class:`Ranking` of the ``n`` lowest-energy bank motions
     per image (``motions [n, 101, 11]``, or ``[B, n, 101, 11]`` for a batch of images, best
     first), with their energies and the EBM's F.
@@ -425,8 +418,8 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     ``predict(models, image, bank, key, ...)``. ``coarse`` as in :func:`predict`. Raises
     ``ValueError`` as :func:`predict` does.
     """
-    preset, image, bank, _, chunk = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk,
-                                                  coarse=coarse)
+    preset, image, bank, _, chunk, coarse = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk,
+                                                          coarse=coarse)
     return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse))
 
 
@@ -449,8 +442,8 @@ def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: ja
         raise ValueError(f"start.energies must be {list(shape[:-2])}, one per motion, got "
                          f"{list(jnp.shape(ranking.energies))}")
     flat = motions.reshape((-1,) + shape[-2:])
-    preset, image, _, key, chunk = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk,
-                                                 "start")
+    preset, image, _, key, chunk, _ = _checked_call(models, preset, method, image, flat, key, shape[-3], R, chunk,
+                                                    "start")
     return _finite(_refine_jit(models, image, ranking._replace(motions=motions), key, preset=preset, method=method,
                                R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings))
 
@@ -472,10 +465,20 @@ def _finite(result):
     return result
 
 
+def resolve_coarse(preset: Preset, coarse: CoarseRanking | None | str, n: int, bank_size: int):
+    """The bank scoring a call asks for: ``coarse`` itself, or for ``"preset"`` the preset's
+    where it keeps more than ``n`` and fewer than ``bank_size`` motions (else None: full)."""
+    if isinstance(coarse, str) and coarse == "preset":
+        own = preset.coarse
+        return own if own is not None and n < own.keep < bank_size else None
+    return coarse
+
+
 def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank", coarse=None):
     """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
     (``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
-    ``(preset, image, bank, key, chunk)``: arrays, a Preset and the chunk (None: the default)."""
+    ``(preset, image, bank, key, chunk, coarse)``: arrays, a Preset, the chunk (None: the
+    default) and the bank scoring (:func:`resolve_coarse`)."""
     chunk = default_chunk() if chunk is None else chunk
     if isinstance(preset, str):
         preset = get_preset(preset)
@@ -485,6 +488,7 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         if not _is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
     image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
+    coarse = resolve_coarse(preset, coarse, n, jnp.shape(bank)[0] if jnp.ndim(bank) else 0)
     check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R, coarse)
     if not isinstance(models, Models):
         raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
@@ -504,4 +508,4 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         check_params(models.dmo, preset, "dmo")
     if method in ("vaebm-l", "vaebm-s"):
         check_params(models.vae, preset, "vae")
-    return preset, image, bank, key, chunk
+    return preset, image, bank, key, chunk, coarse

@@ -121,6 +121,14 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
     together = payload["results"][methods.index("gd")]
     for key in ("episode_success", "candidate_used", "first_error_m", "optimised_first"):
         assert gd[key] == together[key], key
+    # a coarse scoring that keeps the whole bank keeps the full scoring's top n: recall 1
+    from dmo_jax.config import CoarseRanking
+
+    bank_size = len(dataset.load_split(data, TASK, "train").motions)
+    whole = evaluate_method(TASK, "sort", preset=TINY, workdir=work, data_root=data, n=2, episodes=2, backend="mujoco",
+                            coarse=CoarseRanking(4, bank_size), measure_recall=True)
+    assert whole["coarse"] == [4, bank_size] and whole["coarse_recall"] == 1.0
+    assert whole["episode_success"] == sort["episode_success"] and sort["coarse"] is None  # tiny: full scoring
 
 
 def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):

@@ -172,6 +172,22 @@ def test_coarse_ranking_keeps_full_energies_and_is_exact_when_it_keeps_the_whole
     assert out.candidates.shape == (2, 8, 101, 11)
 
 
+def test_the_preset_sets_the_default_bank_scoring_where_it_keeps_more_than_n_and_less_than_the_bank(models, bank):
+    images = _images(2)
+    coarse = inference.CoarseRanking(stride=4, keep=6)
+    own = dataclasses.replace(TINY, coarse=coarse)
+    by_preset = inference.top_candidates(models, images, bank, preset=own, n=4)
+    explicit = inference.top_candidates(models, images, bank, preset=TINY, n=4, coarse=coarse)
+    full = inference.top_candidates(models, images, bank, preset=own, n=4, coarse=None)
+    np.testing.assert_array_equal(by_preset.motions, explicit.motions)
+    np.testing.assert_array_equal(full.motions, inference.top_candidates(models, images, bank, preset=TINY, n=4).motions)
+    assert inference.resolve_coarse(own, "preset", 4, 12) == coarse
+    assert inference.resolve_coarse(own, "preset", 6, 12) is None  # keeping n: nothing to gain
+    assert inference.resolve_coarse(dataclasses.replace(TINY, coarse=inference.CoarseRanking(4, 12)), "preset", 4,
+                                    12) is None  # keeping the whole bank
+    assert inference.resolve_coarse(TINY, "preset", 4, 12) is None  # the paper's full scoring
+
+
 def test_wrong_image_size_and_empty_bank_fail_clearly(models, bank):
     with pytest.raises(ValueError, match=r"image must be \[32, 32, 4\]"):
         predict(models, jnp.zeros((64, 64, 4)), bank, jax.random.key(0), preset=TINY)

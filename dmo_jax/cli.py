@@ -270,6 +270,7 @@ def evaluate_main(argv: list[str] | None = None) -> None:
             _fail(str(err))
         for result in found:
             label = row_label(result, {"dmo_train_steps": args.dmo_train_steps, "recipe": preset.recipe,
+                                       "variant": preset.variant, "negatives": args.negatives,
                                        "dmo_inputs": preset.train.dmo_inputs, "set": args.set})
             by_row.setdefault(label, {})[name] = result
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "

@@ -24,7 +24,8 @@ def row_label(result: dict, settings: dict) -> str:
     two-stage bank scoring other than the ``cpu`` preset's 4/64, which kept the full scoring's
     top 8 in every test scene of the nine tasks and so shares its row); a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
-    inputs than the paper's ``(inputs offset)``, networks of a recipe other than the paper's
+    inputs than the paper's ``(inputs offset)``, another architecture ``(wo_concat)`` or EBM
+    negatives ``(only-vae negatives)``, networks of a recipe other than the paper's
     ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]
@@ -35,6 +36,9 @@ def row_label(result: dict, settings: dict) -> str:
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""
     inputs = settings.get("dmo_inputs") or "decoded"
     label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != "decoded" else ""
+    variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
+    label += "" if variant == "concat" else f" ({variant})"
+    label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     recipe = settings.get("recipe") or "paper"
     label += "" if recipe == "paper" else f" [{recipe}]"
     overrides = sorted(item for item in settings.get("set") or () if not item.startswith("dmo_inputs="))
@@ -56,7 +60,8 @@ def _labelled_results(paths):
             raise ValueError(f"{path}: not a `bin/evaluate --json` file (expected a 'results' list whose entries "
                              "have 'episode_success')")
         for result in results:
-            yield path, row_label(result, payload.get("settings", {})), result
+            # a result's own settings (bin/reproduce's tables hold several runs) override the file's
+            yield path, row_label(result, {**payload.get("settings", {}), **result.get("settings", {})}), result
 
 
 def load_evaluations(paths) -> Rows:

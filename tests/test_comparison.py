@@ -86,6 +86,14 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     payload["settings"].update({"recipe": "bank", "set": ["lr=0.001", "depth_cue=true"]})
     other.write_text(json.dumps(payload))
     assert list(load_evaluations([plain, other])) == ["sort n=8", "sort n=8 [bank] {depth_cue=true, lr=0.001}"]
+    # a result's own settings name its row (bin/reproduce's tables hold several networks per file)
+    mixed = tmp_path / "mixed.json"
+    payload = json.loads(_evaluation(mixed, [("dmo", "reach_target", scenes)] * 3).read_text())
+    for result, own in zip(payload["results"], ({}, {"variant": "wo_concat"}, {"negatives": "only-vae"})):
+        result["settings"] = own
+    mixed.write_text(json.dumps(payload))
+    assert list(load_evaluations([mixed])) == ["dmo n=8 R=1", "dmo n=8 R=1 (wo_concat)",
+                                               "dmo n=8 R=1 (only-vae negatives)"]
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

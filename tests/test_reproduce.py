@@ -1,0 +1,82 @@
+"""bin/reproduce: the tables from nothing, written as files, rendered, and resumable."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from dmo_jax import reproduce
+from dmo_jax.comparison import load_evaluations
+from envs import dataset
+from envs.tasks import get_task
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ("pick_up_cup", "push_button")
+
+
+def test_tables_are_replaced_between_their_markers_and_appended_where_missing(tmp_path):
+    report = tmp_path / "B.md"
+    report.write_text("# B\n\nintro\n<!-- table5 -->\nold\n<!-- /table5 -->\nafter\n")
+    reproduce.update_report(report, {"5": "new five", "6": "six"})
+    text = report.read_text()
+    assert "old" not in text and "<!-- table5 -->\nnew five\n<!-- /table5 -->\nafter" in text
+    assert text.startswith("# B\n\nintro\n") and text.rstrip().endswith("<!-- table6 -->\nsix\n<!-- /table6 -->")
+    reproduce.update_report(report, {"6": "six again"})
+    assert report.read_text().count("<!-- table6 -->") == 1 and "six again" in report.read_text()
+
+
+def test_every_table_has_its_runs_and_the_papers_rows():
+    for table in reproduce.TABLES:
+        runs = reproduce.table_runs(table, "bank")
+        assert runs and len({r.name for r in runs}) == len(runs)
+        assert all(len(v) == 9 for v in reproduce.PAPER[table].values())
+    assert {r.recipe for r in reproduce.table_runs("1", "bank")} == {None, "paper", "bank"}  # both recipes, the oracle
+    with pytest.raises(ValueError, match="unknown table '3'"):
+        reproduce.table_runs("3", "bank")
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, str(ROOT / "bin/reproduce"), *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=1800)
+
+
+def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(tmp_path):
+    data = tmp_path / "data"
+    for name in TASKS:
+        task = get_task(name, 32)
+        dataset.generate_split(task, "train", 16, data, batch=16, verbose=False)
+        dataset.generate_split(task, "test", 10, data, batch=10, verbose=False)
+    report = tmp_path / "REPORT.md"
+    report.write_text("# Report\n")
+    args = ["--tables", "5,6", "--tasks", ",".join(TASKS), "--preset", "tiny", "--episodes", "10", "--data",
+            str(data), "--workdir", str(tmp_path / "runs"), "--results", str(tmp_path / "results"), "--report",
+            str(report)]
+    first = _run(*args)
+    assert first.returncode == 0, first.stderr
+    files = {t: tmp_path / "results" / f"table{t}.json" for t in ("5", "6")}
+    for table, path in files.items():
+        payload = json.loads(path.read_text())
+        made = payload["provenance"]
+        assert (made["preset"], made["episodes"]) == ("tiny", 10) and "jax" in made["versions"]
+        assert made["command"].startswith("bin/reproduce --tables 5,6")
+        records = payload["results"]
+        assert {r["task"] for r in records} == set(TASKS)
+        assert all(r["episodes"] == 10 and r["successes"] == sum(r["episode_success"]) for r in records)
+        expected = {(1, 1), (8, 1), (16, 1)} if table == "5" else {(8, 1), (8, 5), (8, 10)}  # n = 1000: the bank
+        assert {(r["n"], r["R"]) for r in records if r["task"] == TASKS[0]} == expected
+        rows = load_evaluations([path])  # bin/compare reads a table file
+        assert len(rows) == 3 and all(set(per_task) == set(TASKS) for per_task in rows.values())
+    text = report.read_text()
+    for table in ("5", "6"):
+        section = text.split(f"<!-- table{table} -->")[1].split(f"<!-- /table{table} -->")[0]
+        assert "| method | CB | PC | PB |" in section and "paper R=1, n=8" in section
+        assert "dmo n=8 R=1 |" in section and "preset `tiny`" in section
+    before = {p: p.read_bytes() for p in files.values()}
+    second = _run(*args)
+    assert second.returncode == 0, second.stderr
+    assert "training" not in second.stderr and second.stderr.count(": done") == 4
+    assert {p: p.read_bytes() for p in files.values()} == before
+    # results of another preset or scene count are never mixed in
+    other = _run(*args[:-10], "--episodes", "5", *args[-8:])
+    assert other.returncode == 2 and "on 10 scenes, not 'tiny' on 5" in other.stderr

@@ -114,7 +114,7 @@ def render_main(argv: list[str] | None = None) -> None:
             what = f"contact sheet of {args.task}"
         else:
             image, (near, far) = _front_view(args.size)
-            what = f"RGB | depth {near:.2f}-{far:.2f} m, 1st-99th percentile of the scene, near = bright"
+            what = f"RGB | depth, colour bar {near:.2f}-{far:.2f} m: the 1st-99th percentile of the scene's depths"
     except (ValueError, RuntimeError) as err:
         fail(str(err))
     camera.write_png(out, image)
@@ -122,11 +122,13 @@ def render_main(argv: list[str] | None = None) -> None:
 
 
 def _front_view(size: int) -> tuple[np.ndarray, tuple[float, float]]:
-    """The default scene at home from the front camera: RGB beside grey depth, ``[S, 2S, 3]``,
-    and the depth range ``(near, far)`` in metres that the grey scale spans."""
+    """The default scene at home from the front camera, drawn with matplotlib: RGB beside depth
+    in a colour map with a colour bar in metres, uint8 ``[H, W, 3]``; and the depth range
+    ``(near, far)`` in metres that the colour map spans."""
     import mujoco
 
     from envs import camera, demo
+    from envs.video import agg_figure, figure_rgb
 
     world = demo.default_world(size)
     data = mujoco.MjData(world.model)
@@ -136,7 +138,19 @@ def _front_view(size: int) -> tuple[np.ndarray, tuple[float, float]]:
         rgb, depth = renderer.rgbd(data)
     far_plane = float(world.model.vis.map.zfar * world.model.stat.extent)
     near, far = _depth_range(depth, far_plane)
-    return np.concatenate([rgb, camera.depth_to_rgb(depth, near, far)], axis=1), (near, far)
+    cell = max(size, 256)
+    fig = agg_figure(2 * cell + 90, cell + 30)
+    left = fig.add_axes((0.0, 0.0, cell / (2 * cell + 90), cell / (cell + 30)))
+    right = fig.add_axes((cell / (2 * cell + 90), 0.0, cell / (2 * cell + 90), cell / (cell + 30)))
+    left.imshow(rgb, interpolation="nearest")
+    shown = right.imshow(np.clip(depth, near, far), cmap="viridis", vmin=near, vmax=far, interpolation="nearest")
+    for ax, title in ((left, "RGB"), (right, "depth")):
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=10)
+    bar = fig.colorbar(shown, cax=fig.add_axes(((2 * cell + 8) / (2 * cell + 90), 0.05, 14 / (2 * cell + 90), 0.85)))
+    bar.set_label("depth (m)", fontsize=9)
+    bar.ax.tick_params(labelsize=8)
+    return figure_rgb(fig), (near, far)
 
 
 def _depth_range(depth: np.ndarray, far_plane: float,

@@ -77,13 +77,14 @@ def test_every_command_help_describes_every_option_and_writes_nothing(tmp_path, 
     import argparse
 
     from dmo_jax import cli as learning
+    from dmo_jax import reproduce
     from envs import cli as world
 
     commands = {"benchmark": learning.benchmark_main, "compare": learning.compare_main, "cost": learning.cost_main,
                 "ebm_misses": learning.ebm_misses_main, "evaluate": learning.evaluate_main,
                 "train_all": learning.train_all_main, "execute": world.execute_main,
                 "generate_data": world.generate_data_main, "render": world.render_main,
-                "task_report": world.task_report_main}
+                "task_report": world.task_report_main, "reproduce": reproduce.main}
     assert set(commands) | {"demo", "setup", "test"} == {p.name for p in (ROOT / "bin").iterdir()
                                                         if p.is_file() and not p.name.startswith("_")}
     monkeypatch.chdir(tmp_path)

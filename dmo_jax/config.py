@@ -52,7 +52,6 @@ class HeadConfig:
     num_blocks: int = 4
     num_heads: int = 4
     dropout: float = 0.1  # pose MLP dropout
-    pre_layernorm: bool = False  # paper-faithful block has no LayerNorm
     vit_tokens_per_side: int = 16  # ViT variant: F cut into 16 x 16 patches (l = 256)
     # The pose MLP reads depth as (z - pose_z_offset) * pose_z_scale (the paper's: z in metres,
     # 0 and 1). A task's depths spread by ~0.1 m against ~0.3 for uv, and Adam moves a weight by
@@ -149,7 +148,6 @@ class TrainConfig:
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
     dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1
-    num_candidates: int = 8  # n kept by the EBM at inference
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -244,9 +242,6 @@ class Preset:
         train = dataclasses.replace(self.train, **recipe_settings(recipe, self.train))
         return dataclasses.replace(self, recipe=recipe, train=train)
 
-    def with_compute_dtype(self, dtype: str) -> "Preset":
-        return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
-
     def with_overrides(self, overrides: list[str]) -> "Preset":
         """This preset with settings replaced, each given as ``"field=value"`` with a field of
         :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (how
@@ -326,7 +321,7 @@ TINY = Preset(
     vae=VAEConfig(d_model=32, num_layers=1, num_heads=2, ff_dim=64, input_hidden=(32, 32)),
     train=TrainConfig(
         vae_steps=20, vae_batch=8, ebm_steps=20, ebm_batch=4, dmo_steps=20, dmo_batch=4,
-        ebm_gt_negatives=3, ebm_vae_negatives=4, dmo_train_iters=2, num_candidates=4, lr_decay_every=10,
+        ebm_gt_negatives=3, ebm_vae_negatives=4, dmo_train_iters=2, lr_decay_every=10,
     ),
 )
 

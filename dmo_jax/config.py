@@ -147,7 +147,6 @@ class TrainConfig:
     # reconstruction error, which bank motions do not have.
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
-    dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1
 
     def __post_init__(self):
         for f in dataclasses.fields(self):

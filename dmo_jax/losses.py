@@ -23,10 +23,10 @@ def motion_errors(pred: jnp.ndarray, target: jnp.ndarray) -> dict[str, jnp.ndarr
     }
 
 
-def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0, z_weight: float = 1.0) -> jnp.ndarray:
-    """MSE(rotation matrices) + uv_weight * MSE(uv) + z_weight * MSE(z) + MSE(grasp)."""
+def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0) -> jnp.ndarray:
+    """MSE(rotation matrices) + uv_weight * MSE(uv) + MSE(z) + MSE(grasp)."""
     e = motion_errors(pred, target)
-    return e["rotation"] + uv_weight * e["uv"] + z_weight * e["z"] + e["grasp"]
+    return e["rotation"] + uv_weight * e["uv"] + e["z"] + e["grasp"]
 
 
 # --------------------------------------------------------------------------- VAE
@@ -172,15 +172,14 @@ def dmo_unroll(dmo, params, feature, motions, steps: int, train: bool = False, k
     return outs
 
 
-def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: float = 10.0,
-             z_weight: float = 1.0):
+def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: float = 10.0):
     """Mean over the ``steps`` unrolled outputs of the motion loss against the clean targets;
     gradients flow through the whole unroll; F is computed once per image and reused."""
     k_enc, k_head = jax.random.split(key)
     feature = dmo.encode(params, images, train=True, rng=k_enc)
     keys = jax.random.split(k_head, images.shape[0])
     outs = jax.vmap(lambda f, m, k: dmo_unroll(dmo, params, f, m[None], steps, True, k)[:, 0])(feature, inputs, keys)
-    per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight, z_weight), in_axes=1)(outs)
+    per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight), in_axes=1)(outs)
     return jnp.mean(per_step), {"first_step": per_step[0], "last_step": per_step[-1]}
 
 

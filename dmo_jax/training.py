@@ -236,8 +236,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
         k_in, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
         inputs = losses.dmo_inputs(vae, vae_params, batch["motions"], k_in, cfg)
-        return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight,
-                               cfg.dmo_z_weight)
+        return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight)
 
     @jax.jit  # compiled once per run, the VAE's inputs included
     def evaluate(params, vae_params, images, motions, starts):

@@ -216,8 +216,8 @@ def test_unknown_names_raise_clear_errors():
 
 def test_train_overrides_replace_only_the_named_settings():
     cpu = get_preset("cpu")
-    longer = cpu.with_overrides(["dmo_steps=2400", "dmo_z_weight=30", "ebm_vae_negatives=0"])
-    assert (longer.train.dmo_steps, longer.train.dmo_z_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
+    longer = cpu.with_overrides(["dmo_steps=2400", "uv_weight=30", "ebm_vae_negatives=0"])
+    assert (longer.train.dmo_steps, longer.train.uv_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
     assert longer.train.ebm_steps == cpu.train.ebm_steps and longer.encoder == cpu.encoder
     assert cpu.with_overrides([]) == cpu
     scaled = cpu.with_overrides(["pose_z_offset=1.45", "pose_z_scale=10"])

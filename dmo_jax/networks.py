@@ -162,11 +162,7 @@ class MotionTrunk(nn.Module):
         cfg = self.config
         w = cfg.width
         n = motions.shape[0]
-        poses = motions
-        if (cfg.pose_z_offset, cfg.pose_z_scale) != (0.0, 1.0):
-            z = POSE_KEYS["z"]
-            poses = motions.at[..., z].set((motions[..., z] - cfg.pose_z_offset) * cfg.pose_z_scale)
-        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(poses, deterministic)
+        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(motions, deterministic)
         if cfg.variant == "concat":
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
             mix_in = [f, g]

@@ -42,7 +42,7 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or how the "
-                        "head reads depth (pose_z_offset, pose_z_scale, depth_cue, depth_cue_range), e.g. "
+                        "head reads depth (depth_cue, depth_cue_range), e.g. "
                         "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
                         "same --workdir")
     parser.add_argument("--seed", type=int, default=0, help="training seed: initialisation, batches, draws (default 0)")

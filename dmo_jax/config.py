@@ -52,13 +52,7 @@ class HeadConfig:
     num_blocks: int = 4
     num_heads: int = 4
     dropout: float = 0.1  # pose MLP dropout
-    pre_layernorm: bool = False  # paper-faithful block has no LayerNorm
     vit_tokens_per_side: int = 16  # ViT variant: F cut into 16 x 16 patches (l = 256)
-    # The pose MLP reads depth as (z - pose_z_offset) * pose_z_scale (the paper's: z in metres,
-    # 0 and 1). A task's depths spread by ~0.1 m against ~0.3 for uv, and Adam moves a weight by
-    # at most ~lr per step, so a short run cannot learn a 10x larger weight on z by itself.
-    pose_z_offset: float = 0.0
-    pose_z_scale: float = 1.0
     # Not in the paper (False = off; concat variant only): F carries the network image's depth
     # as one extra channel, and the feature-mix MLP also reads, per pose, the image's depth at
     # the pose's pixel minus the pose's depth, in decimetres.
@@ -69,11 +63,8 @@ class HeadConfig:
 
     def __post_init__(self):
         check_variant(self.variant)
-        for name in ("pose_z_offset", "pose_z_scale", "depth_cue_range"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"HeadConfig: {name} must be a finite number, got {getattr(self, name)}")
-        if self.pose_z_scale == 0:
-            raise ValueError("HeadConfig: pose_z_scale must be non-zero (the pose MLP would not see depth)")
+        if not math.isfinite(self.depth_cue_range):
+            raise ValueError(f"HeadConfig: depth_cue_range must be a finite number, got {self.depth_cue_range}")
         if self.depth_cue and self.variant != "concat":
             raise ValueError(f"HeadConfig: depth_cue needs the concat variant, not {self.variant!r}")
         if self.depth_cue_range < 0 or (self.depth_cue_range and not self.depth_cue):
@@ -123,11 +114,6 @@ class TrainConfig:
     ebm_gt_negatives: int = 31  # other images' ground-truth motions
     ebm_vae_negatives: int = 32  # decoded at z = mu + vae_negative_sigma * sigma * eps
     vae_negative_sigma: float = 2.0
-    # Not in the paper (0 = off): copies of the positive whose camera-frame depth drifts away
-    # linearly in time, to +-U(1/4, 1) * depth_negative_shift metres at the last pose. They
-    # project onto the positive's pixels, so only the depth read through F can rank them lower.
-    ebm_depth_negatives: int = 0
-    depth_negative_shift: float = 0.08
     # Not in the paper (0 = off): this many of the ebm_gt_negatives are drawn, per positive,
     # from its near_pool nearest other training motions (dmo_jax.neighbours) instead of
     # random other images of the batch: the bank motions it competes with at prediction.
@@ -148,8 +134,6 @@ class TrainConfig:
     # reconstruction error, which bank motions do not have.
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
-    dmo_z_weight: float = 1.0  # loss weight of MSE(z) (metres) in the DMO's loss; the paper's is 1
-    num_candidates: int = 8  # n kept by the EBM at inference
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -158,9 +142,8 @@ class TrainConfig:
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
         if self.ebm_target_scale < 0:
             raise ValueError(f"ebm_target_scale must be >= 0 (metres; 0 = one-hot target), got {self.ebm_target_scale}")
-        for name in ("lr", "depth_negative_shift"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.lr <= 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
         if not 0 < self.lr_decay <= 1:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
         if self.dmo_inputs not in DMO_INPUTS:
@@ -244,9 +227,6 @@ class Preset:
         train = dataclasses.replace(self.train, **recipe_settings(recipe, self.train))
         return dataclasses.replace(self, recipe=recipe, train=train)
 
-    def with_compute_dtype(self, dtype: str) -> "Preset":
-        return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, compute_dtype=dtype))
-
     def with_overrides(self, overrides: list[str]) -> "Preset":
         """This preset with settings replaced, each given as ``"field=value"`` with a field of
         :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (how
@@ -275,10 +255,10 @@ class Preset:
                                    head=dataclasses.replace(self.head, **head))
 
 
-#: Head settings ``--set`` may change. They change what the networks compute (the rescaling
+#: Head settings ``--set`` may change. They change what the networks compute (the cue's range
 #: without changing any parameter's shape), so checkpoints record them (``training``) and refuse
 #: to load under other values.
-HEAD_OVERRIDES = ("pose_z_offset", "pose_z_scale", "depth_cue", "depth_cue_range")
+HEAD_OVERRIDES = ("depth_cue", "depth_cue_range")
 
 
 PAPER = Preset(name="paper", image_size=256)
@@ -326,7 +306,7 @@ TINY = Preset(
     vae=VAEConfig(d_model=32, num_layers=1, num_heads=2, ff_dim=64, input_hidden=(32, 32)),
     train=TrainConfig(
         vae_steps=20, vae_batch=8, ebm_steps=20, ebm_batch=4, dmo_steps=20, dmo_batch=4,
-        ebm_gt_negatives=3, ebm_vae_negatives=4, dmo_train_iters=2, num_candidates=4, lr_decay_every=10,
+        ebm_gt_negatives=3, ebm_vae_negatives=4, dmo_train_iters=2, lr_decay_every=10,
     ),
 )
 

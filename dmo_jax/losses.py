@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .config import TrainConfig
-from .motion import GRASP, ROT6D, TIME, UV, Z, camera_positions, rot6d_to_matrix
+from .motion import GRASP, ROT6D, UV, Z, camera_positions, rot6d_to_matrix
 
 NEGATIVE_MODES = ("in-data+vae", "only-vae")
 
@@ -23,10 +23,10 @@ def motion_errors(pred: jnp.ndarray, target: jnp.ndarray) -> dict[str, jnp.ndarr
     }
 
 
-def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0, z_weight: float = 1.0) -> jnp.ndarray:
-    """MSE(rotation matrices) + uv_weight * MSE(uv) + z_weight * MSE(z) + MSE(grasp)."""
+def motion_loss(pred: jnp.ndarray, target: jnp.ndarray, uv_weight: float = 10.0) -> jnp.ndarray:
+    """MSE(rotation matrices) + uv_weight * MSE(uv) + MSE(z) + MSE(grasp)."""
     e = motion_errors(pred, target)
-    return e["rotation"] + uv_weight * e["uv"] + z_weight * e["z"] + e["grasp"]
+    return e["rotation"] + uv_weight * e["uv"] + e["z"] + e["grasp"]
 
 
 # --------------------------------------------------------------------------- VAE
@@ -55,8 +55,7 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     ``in-data+vae``: ``ebm_gt_negatives`` ground-truth motions of *other* images in the batch
     (with replacement) + ``ebm_vae_negatives`` VAE samples at ``vae_negative_sigma`` decoded
     from batch motions and shuffled across the batch. ``only-vae``: all K negatives from the
-    VAE (paper Table 4 b). Either way ``ebm_depth_negatives`` copies of the positive that
-    drift in depth alone follow (:func:`depth_negatives`; none by default).
+    VAE (paper Table 4 b).
 
     ``cfg.ebm_near_negatives`` > 0 (``in-data+vae`` only) draws that many of the in-data
     negatives, without replacement, from ``near [B, P, 101, 11]``, each positive's P nearest
@@ -87,25 +86,7 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     samples = vae.sample_around(vae_params, motions, k_vae, cfg.vae_negative_sigma, num_samples=n_vae)
     flat = samples.reshape((b * n_vae,) + motions.shape[1:])
     parts.append(jax.random.permutation(k_perm, flat).reshape((b, n_vae) + motions.shape[1:]))
-    if cfg.ebm_depth_negatives:
-        # a key of their own: the paper's negatives keep the keys they had before this option
-        k_depth = jax.random.fold_in(key, 3)
-        parts.append(depth_negatives(motions, k_depth, cfg.ebm_depth_negatives, cfg.depth_negative_shift))
     return jax.lax.stop_gradient(jnp.concatenate(parts, axis=1))
-
-
-def depth_negatives(motions, key, num: int, max_shift: float) -> jnp.ndarray:
-    """``[B, num, 101, 11]`` copies of ``motions [B, 101, 11]`` whose depth z drifts by
-    ``t * d`` (t the normalised time, so the start pose is unchanged), with
-    ``|d| ~ U(max_shift / 4, max_shift)`` metres and a random sign per copy. uv, rotation and
-    grasp are the positive's: the copies sample F at the same pixels."""
-    k_mag, k_sign = jax.random.split(key)
-    shape = (motions.shape[0], num)
-    shift = jax.random.uniform(k_mag, shape, minval=0.25 * max_shift, maxval=max_shift)
-    shift = jnp.where(jax.random.bernoulli(k_sign, 0.5, shape), shift, -shift)
-    copies = jnp.repeat(motions[:, None], num, axis=1)
-    drift = shift[..., None, None] * copies[..., TIME]
-    return copies.at[..., Z].add(drift)
 
 
 def graded_targets(candidates, intrinsics, image_size: int, scale: float) -> jnp.ndarray:
@@ -172,15 +153,14 @@ def dmo_unroll(dmo, params, feature, motions, steps: int, train: bool = False, k
     return outs
 
 
-def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: float = 10.0,
-             z_weight: float = 1.0):
+def dmo_loss(dmo, params, images, inputs, targets, key, steps: int, uv_weight: float = 10.0):
     """Mean over the ``steps`` unrolled outputs of the motion loss against the clean targets;
     gradients flow through the whole unroll; F is computed once per image and reused."""
     k_enc, k_head = jax.random.split(key)
     feature = dmo.encode(params, images, train=True, rng=k_enc)
     keys = jax.random.split(k_head, images.shape[0])
     outs = jax.vmap(lambda f, m, k: dmo_unroll(dmo, params, f, m[None], steps, True, k)[:, 0])(feature, inputs, keys)
-    per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight, z_weight), in_axes=1)(outs)
+    per_step = jax.vmap(lambda o: motion_loss(o, targets, uv_weight), in_axes=1)(outs)
     return jnp.mean(per_step), {"first_step": per_step[0], "last_step": per_step[-1]}
 
 

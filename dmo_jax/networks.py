@@ -12,7 +12,7 @@ Head of variant ``concat`` (the paper's model), per motion:
   (option ``depth_cue``, not in the paper: F carries the image's depth as a last channel and
   the MLP also reads, per pose, the image's depth at uv_t minus the pose's depth, in dm,
   or tanh of it over ``depth_cue_range`` metres);
-* Transformer over the 101 tokens (:class:`TransformerBlock`, paper-faithful by default);
+* Transformer over the 101 tokens (:class:`TransformerBlock`, as the reference: no LayerNorm);
 * EBM: mean over tokens -> MLP w -> w -> w -> w/2 -> w/2 -> 1 = energy (lower is better);
 * DMO: per token w -> w -> w -> w/2 -> w/2 (GELU), then one head per key
   (Dense w/2 -> PReLU -> Dense d -> PReLU, as the reference) giving a residual added to
@@ -134,22 +134,18 @@ class MultiHeadAttention(nn.Module):
 class TransformerBlock(nn.Module):
     """The reference block: ``x += MHA(split(GELU(Dense 3w)))``; ``x += FF(x)``, FF = 3 x (Dense w + GELU).
 
-    No LayerNorm and no positional encoding, unless ``pre_layernorm`` (an allowed
-    variant): then LayerNorm is applied before the q/k/v layer and before FF.
+    No LayerNorm and no positional encoding.
     """
 
     num_heads: int
-    pre_layernorm: bool = False
 
     @nn.compact
     def __call__(self, x, deterministic: bool = True):
         w = x.shape[-1]
-        y = nn.LayerNorm(name="norm1")(x) if self.pre_layernorm else x
-        qkv = gelu(nn.Dense(3 * w, name="qkv")(y))
+        qkv = gelu(nn.Dense(3 * w, name="qkv")(x))
         q, k, v = jnp.split(qkv, 3, axis=-1)
         x = x + MultiHeadAttention(self.num_heads, name="attn")(q, k, v, deterministic)
-        y = nn.LayerNorm(name="norm2")(x) if self.pre_layernorm else x
-        return x + MLP((w, w, w), final_act=True, name="ff")(y)
+        return x + MLP((w, w, w), final_act=True, name="ff")(x)
 
 
 # --------------------------------------------------------------------------- heads
@@ -166,11 +162,7 @@ class MotionTrunk(nn.Module):
         cfg = self.config
         w = cfg.width
         n = motions.shape[0]
-        poses = motions
-        if (cfg.pose_z_offset, cfg.pose_z_scale) != (0.0, 1.0):
-            z = POSE_KEYS["z"]
-            poses = motions.at[..., z].set((motions[..., z] - cfg.pose_z_offset) * cfg.pose_z_scale)
-        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(poses, deterministic)
+        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(motions, deterministic)
         if cfg.variant == "concat":
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
             mix_in = [f, g]
@@ -197,7 +189,7 @@ class MotionTrunk(nn.Module):
         else:  # HeadConfig validates the name; this guards future additions
             raise ValueError(f"unhandled variant {cfg.variant!r}")
         for i in range(cfg.num_blocks):
-            tokens = TransformerBlock(cfg.num_heads, cfg.pre_layernorm, name=f"block{i}")(tokens, deterministic)
+            tokens = TransformerBlock(cfg.num_heads, name=f"block{i}")(tokens, deterministic)
         return tokens, tokens[:, image_tokens:]
 
 

@@ -140,8 +140,6 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
 
 #: The held-out ranking's negatives: the paper's counts, whatever the preset trains with.
 HELDOUT_GT_NEGATIVES, HELDOUT_VAE_NEGATIVES = 31, 32
-#: ``depth_top1``: the positive against this many copies drifting in depth alone by up to DEPTH_SHIFT m.
-HELDOUT_DEPTH_NEGATIVES, DEPTH_SHIFT = 8, 0.08
 
 
 def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
@@ -149,8 +147,7 @@ def heldout_ebm_candidates(preset: Preset, vae_params, motions) -> jax.Array:
     then the paper's 63 negatives, 31 other held-out motions (indices 1..31) and 32 VAE samples
     at 2 sigma; a fixed key, so every evaluation ranks the same sets."""
     counts = dataclasses.replace(preset.train, ebm_gt_negatives=HELDOUT_GT_NEGATIVES,
-                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES, ebm_depth_negatives=0,
-                                 ebm_near_negatives=0)
+                                 ebm_vae_negatives=HELDOUT_VAE_NEGATIVES, ebm_near_negatives=0)
     return losses.ebm_candidates(VAENet.from_preset(preset), vae_params, jnp.asarray(motions),
                                  jax.random.key(1234), counts, "in-data+vae")
 
@@ -190,9 +187,6 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     @jax.jit  # compiled once per run, the VAE's negatives included
     def evaluate(params, vae_params, images, motions, rivals):
         metrics = losses.ebm_eval(net, params, images, heldout_ebm_candidates(preset, vae_params, motions))
-        depth = losses.depth_negatives(motions, jax.random.key(4321), HELDOUT_DEPTH_NEGATIVES, DEPTH_SHIFT)
-        metrics["depth_top1"] = losses.ebm_eval(net, params, images,
-                                                jnp.concatenate([motions[:, None], depth], axis=1))["top1"]
         if rivals is not None:
             energies = losses.ebm_energies(net, params, images, jnp.concatenate([motions[:, None], rivals], axis=1))
             metrics["near_top1"] = jnp.mean(jnp.argmin(energies, axis=-1) == 0)
@@ -211,8 +205,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
                                      **_head_meta(preset),
                                      "negatives": negatives, "near_negatives": near_meta,
                                      "target_scale": cfg.ebm_target_scale,
-                                     "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives,
-                                                         cfg.ebm_depth_negatives]},
+                                     "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives]},
                      cfg, near_meta[1])
 
 
@@ -236,8 +229,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
         k_in, k_aug, k_loss = jax.random.split(key, 3)
         images = augment_batch(batch["images"], k_aug) if augment else batch["images"]
         inputs = losses.dmo_inputs(vae, vae_params, batch["motions"], k_in, cfg)
-        return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight,
-                               cfg.dmo_z_weight)
+        return losses.dmo_loss(net, params, images, inputs, batch["motions"], k_loss, r, cfg.uv_weight)
 
     @jax.jit  # compiled once per run, the VAE's inputs included
     def evaluate(params, vae_params, images, motions, starts):
@@ -285,15 +277,14 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
 
 
 def _head_meta(preset: Preset) -> dict:
-    """How the head reads depth (``config.HEAD_OVERRIDES``). The rescaling changes what a
+    """How the head reads depth (``config.HEAD_OVERRIDES``). The cue's range changes what a
     checkpoint computes without changing any parameter's shape, so only this record tells."""
     head = preset.head
-    return {"pose_z": [head.pose_z_offset, head.pose_z_scale], "depth_cue": head.depth_cue,
-            "depth_cue_range": head.depth_cue_range}
+    return {"depth_cue": head.depth_cue, "depth_cue_range": head.depth_cue_range}
 
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
-_META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0],
+_META_BEFORE = {"depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0],
                 "target_scale": 0.0,
                 "inputs": "decoded"}
 
@@ -302,8 +293,28 @@ _META_BEFORE = {"pose_z": [0.0, 1.0], "depth_cue": False, "depth_cue_range": 0.0
 _META_UNKNOWN_BEFORE = ("negative_counts", "task")
 
 
+def _without_removed_settings(saved: dict, path: Path) -> dict:
+    """``saved`` without what older checkpoints record of settings since removed: the pose MLP's
+    depth rescaling (``pose_z``: offset, scale) and the EBM's depth negatives (the third of
+    ``negative_counts``). Raises :class:`TrainingError` for a checkpoint trained with one of them
+    on, which this code cannot reproduce."""
+    saved, used = dict(saved), []
+    pose_z = saved.pop("pose_z", [0.0, 1.0])
+    if pose_z != [0.0, 1.0]:
+        used.append(f"pose_z_offset, pose_z_scale = {pose_z}")
+    counts = saved.get("negative_counts")
+    if isinstance(counts, list) and len(counts) == 3:
+        saved["negative_counts"] = counts[:2]
+        if counts[2]:
+            used.append(f"ebm_depth_negatives = {counts[2]}")
+    if used:
+        raise TrainingError(f"checkpoint at {path} was trained with settings this code no longer has "
+                            f"({'; '.join(used)}); retrain it in another --workdir")
+    return saved
+
+
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
-    saved = {**_META_BEFORE, **saved}
+    saved = {**_META_BEFORE, **_without_removed_settings(saved, path)}
     diff = {k: (saved.get(k), v) for k, v in expected.items()
             if saved.get(k) != v and not (k in _META_UNKNOWN_BEFORE and k not in saved)}
     if diff:

@@ -216,12 +216,12 @@ def test_unknown_names_raise_clear_errors():
 
 def test_train_overrides_replace_only_the_named_settings():
     cpu = get_preset("cpu")
-    longer = cpu.with_overrides(["dmo_steps=2400", "dmo_z_weight=30", "ebm_vae_negatives=0"])
-    assert (longer.train.dmo_steps, longer.train.dmo_z_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
+    longer = cpu.with_overrides(["dmo_steps=2400", "uv_weight=30", "ebm_vae_negatives=0"])
+    assert (longer.train.dmo_steps, longer.train.uv_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
     assert longer.train.ebm_steps == cpu.train.ebm_steps and longer.encoder == cpu.encoder
     assert cpu.with_overrides([]) == cpu
-    scaled = cpu.with_overrides(["pose_z_offset=1.45", "pose_z_scale=10"])
-    assert (scaled.head.pose_z_offset, scaled.head.pose_z_scale, scaled.train) == (1.45, 10.0, cpu.train)
+    cue = cpu.with_overrides(["depth_cue=true", "depth_cue_range=0.1"])
+    assert (cue.head.depth_cue, cue.head.depth_cue_range, cue.train) == (True, 0.1, cpu.train)
 
 
 def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():
@@ -260,15 +260,3 @@ def test_depth_cue_range_saturates_the_gap_behind_poses_far_in_front():
         tiny.with_overrides(["depth_cue_range=0.1"])
     with pytest.raises(ValueError, match="depth_cue_range must be >= 0"):
         tiny.with_overrides(["depth_cue=true", "depth_cue_range=-1"])
-
-
-def test_pose_depth_input_scaling_is_the_same_network_on_rescaled_depths():
-    tiny = get_preset("tiny")
-    scaled = tiny.with_overrides(["pose_z_offset=1.4", "pose_z_scale=10"])
-    ebm, ebm_scaled = EBMNet(tiny), EBMNet(scaled)
-    params = ebm.init(jax.random.key(0))
-    feature = ebm.encode(params, jax.random.uniform(jax.random.key(1), (32, 32, 4)))
-    motions = jax.random.uniform(jax.random.key(2), (3, 101, 11), minval=1.2, maxval=1.6)
-    rescaled = motions.at[..., 2].set((motions[..., 2] - 1.4) * 10)
-    np.testing.assert_allclose(ebm_scaled.energy(params, feature, motions), ebm.energy(params, feature, rescaled),
-                               rtol=1e-5, atol=1e-6)

@@ -73,7 +73,7 @@ def test_ebm_loss_decreases(task_data, vae_params, tmp_path):
     spec = training.ebm_spec(_fast(TINY, 40), heldout=task_data[1], augment=False)
     _, summary = training.fit(spec, task_data[0], tmp_path, extra=vae_params, log_every=1, verbose=False)
     assert _decreases(_losses(tmp_path))
-    assert 0.0 <= summary["heldout_top1"] <= 1.0 and 0.0 <= summary["heldout_depth_top1"] <= 1.0
+    assert 0.0 <= summary["heldout_top1"] <= 1.0
     # the record for people: TensorBoard event files a TensorBoard reader loads, and a plot
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -112,27 +112,6 @@ def test_heldout_top1_in_chunks_equals_each_image_ranked_alone(task_data, vae_pa
     # With each image's lowest-energy candidate put in first place, every positive wins.
     swapped = candidates.at[:, 0].set(candidates[jnp.arange(5), winners])
     assert float(losses.ebm_eval(ebm, params, images, swapped, images_per_chunk=2)["top1"]) == 1.0
-
-
-def test_depth_negatives_differ_from_the_positive_in_depth_alone(task_data, vae_params):
-    from dmo_jax import losses
-    from dmo_jax.vae import VAENet
-
-    motions = jnp.asarray(task_data[0].motions[:4])
-    cfg = dataclasses.replace(TINY.train, ebm_depth_negatives=3, depth_negative_shift=0.08)
-    cands = losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0), cfg)
-    assert cands.shape == (4, 1 + 3 + 4 + 3, 101, 11)  # positive, in-data, VAE, depth
-    depth = cands[:, -3:]
-    same = np.delete(np.arange(11), 2)  # every channel but z
-    np.testing.assert_array_equal(depth[..., same], jnp.broadcast_to(motions[:, None], depth.shape)[..., same])
-    drift = np.asarray(depth[..., 2] - motions[:, None, :, 2])
-    np.testing.assert_allclose(drift[..., 0], 0.0, atol=1e-6)  # the start pose is the positive's
-    end = np.abs(drift[..., -1])
-    assert end.min() >= 0.02 - 1e-5 and end.max() <= 0.08 + 1e-5
-    assert (drift[..., -1] > 0).any() and (drift[..., -1] < 0).any()  # nearer and further both occur
-    # the default, the paper's recipe, has none, and its negatives do not change with the option
-    paper = losses.ebm_candidates(VAENet.from_preset(TINY), vae_params, motions, jax.random.key(0), TINY.train)
-    np.testing.assert_array_equal(paper, cands[:, :1 + 3 + 4])
 
 
 def test_offset_dmo_inputs_carry_the_vae_perturbation_without_its_reconstruction_error(task_data, vae_params):
@@ -197,19 +176,33 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
         training.fit(training.vae_spec(_fast(TINY, 1)), task_data[0], tmp_path, verbose=False)
 
 
-def test_checkpoint_refuses_another_pose_depth_input(task_data, vae_params, tmp_path):
-    # the scaling changes what the network computes but no parameter shape
-    training.fit(training.ebm_spec(_fast(TINY, 1)), task_data[0], tmp_path, extra=vae_params, verbose=False)
-    scaled = _fast(TINY, 1).with_overrides(["pose_z_scale=10"])
-    with pytest.raises(training.TrainingError, match=r"pose_z: checkpoint has \[0.0, 1.0\], expected \[0.0, 10.0\]"):
-        training.load_params(tmp_path, training.ebm_spec(scaled))
+def test_checkpoint_refuses_another_depth_cue_range(task_data, vae_params, tmp_path):
+    # the cue's range changes what the network computes but no parameter shape
+    cue = _fast(TINY, 1).with_overrides(["depth_cue=true"])
+    training.fit(training.ebm_spec(cue), task_data[0], tmp_path, extra=vae_params, verbose=False)
+    ranged = cue.with_overrides(["depth_cue_range=0.1"])
+    with pytest.raises(training.TrainingError, match=r"depth_cue_range: checkpoint has 0.0, expected 0.1"):
+        training.load_params(tmp_path, training.ebm_spec(ranged))
     # so do other negatives: an EBM trained against 3 in-data negatives is not the one asked for with 2
-    fewer = _fast(TINY, 1).with_overrides(["ebm_gt_negatives=2"])
-    with pytest.raises(training.TrainingError, match=r"negative_counts: checkpoint has \[3, 4, 0\], expected \[2, 4, 0\]"):
+    fewer = cue.with_overrides(["ebm_gt_negatives=2"])
+    with pytest.raises(training.TrainingError, match=r"negative_counts: checkpoint has \[3, 4\], expected \[2, 4\]"):
         training.load_params(tmp_path, training.ebm_spec(fewer))
     # a checkpoint written before the counts were recorded loads under any
     saved = {"model": "ebm", "negatives": "in-data+vae"}
-    training._check_meta(saved, {"model": "ebm", "negative_counts": [2, 4, 0]}, tmp_path)
+    training._check_meta(saved, {"model": "ebm", "negative_counts": [2, 4]}, tmp_path)
+
+
+def test_checkpoint_of_a_removed_setting_loads_at_its_default_and_fails_clearly_otherwise(tmp_path):
+    # what checkpoints recorded of the pose MLP's depth rescaling and the EBM's depth negatives
+    old = {"model": "ebm", "pose_z": [0.0, 1.0], "depth_cue": False, "negative_counts": [3, 4, 0]}
+    expected = {"model": "ebm", "depth_cue": False, "negative_counts": [3, 4]}
+    training._check_meta(old, expected, tmp_path)
+    with pytest.raises(training.TrainingError, match=r"negative_counts: checkpoint has \[3, 4\], expected \[2, 4\]"):
+        training._check_meta(old, {**expected, "negative_counts": [2, 4]}, tmp_path)
+    for removed, setting in (({"pose_z": [1.45, 10.0]}, r"pose_z_offset, pose_z_scale = \[1.45, 10.0\]"),
+                             ({"negative_counts": [3, 4, 4]}, "ebm_depth_negatives = 4")):
+        with pytest.raises(training.TrainingError, match=rf"settings this code no longer has \({setting}\)"):
+            training._check_meta({**old, **removed}, expected, tmp_path)
 
 
 def test_more_steps_continue_a_finished_run(task_data, tmp_path):

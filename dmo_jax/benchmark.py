@@ -405,7 +405,8 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
     Peak memory is XLA's compiled memory analysis (arguments + outputs + temporaries).
     """
-    from .inference import Models, _finite, check_arrays, predict, project_motions, refine, top_candidates
+    from .checks import check_arrays
+    from .inference import Models, _finite, predict, project_motions, refine, top_candidates
     from .motion import time_grid
     from .networks import DMONet, EBMNet
     from .vae import VAENet

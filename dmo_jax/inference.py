@@ -33,22 +33,19 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .checks import check_arrays, check_params, is_concrete, is_integer
 from .config import CoarseRanking, Preset, get_preset
 from .losses import dmo_unroll
-from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, describe_array, matrix_to_rot6d,
+from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, matrix_to_rot6d,
                      rot6d_to_matrix)
 from .networks import DMONet, EBMNet
 from .vae import VAENet
-
-METHODS = ("sort", "dmo", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo")
-#: Methods whose result depends on R (the DMO's refinements); the others ignore it.
-METHODS_USING_R = ("dmo",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,15 +97,6 @@ class Prediction(NamedTuple):
     energies: jax.Array
 
 
-def num_candidates(method: str, n: int, R: int) -> int:
-    """K, the number of ranked candidates :func:`predict` returns."""
-    if method == "sort":
-        return n
-    if method == "dmo":
-        return n * (R + 1)
-    return 2 * n
-
-
 def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, R: int,
                   coarse: CoarseRanking | None = None) -> None:
     """Static checks of a :func:`predict` call; raises ``ValueError`` naming what is wrong."""
@@ -129,95 +117,13 @@ def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, 
     if R < 0:
         raise ValueError(f"R must be >= 0, got {R}")
     if coarse is not None:
-        if not isinstance(coarse, CoarseRanking) or not all(_is_integer(v) for v in coarse):
+        if not isinstance(coarse, CoarseRanking) or not all(is_integer(v) for v in coarse):
             raise ValueError(f"coarse must be a CoarseRanking(stride, keep) of integers, None or 'preset', "
                              f"got {coarse!r}")
         if not 1 <= coarse.stride < NUM_STEPS:
             raise ValueError(f"coarse.stride must be in [1, {NUM_STEPS - 1}], got {coarse.stride}")
         if not n <= coarse.keep <= bank_shape[0]:
             raise ValueError(f"coarse.keep must be in [n = {n}, bank size {bank_shape[0]}], got {coarse.keep}")
-
-
-def _is_concrete(x) -> bool:
-    """False for a tracer (``predict`` called inside the caller's ``jax.jit``): its values are
-    unknown, only its shape and dtype can be checked."""
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _is_integer(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def check_arrays(image, bank, key, bank_name: str = "bank") -> None:
-    """dtype checks (always) and value checks (concrete arrays only) of :func:`predict`'s
-    arrays (``key`` None: not checked); raises ``ValueError`` naming what is wrong and what was
-    expected (the motions as ``bank_name``)."""
-    if not jnp.issubdtype(image.dtype, jnp.floating):
-        raise ValueError(f"image must be floating-point (RGB in [0, 1] + depth mapped to [0, 1], see "
-                         f"dmo_jax.data.network_image), got {describe_array(image)}")
-    if not jnp.issubdtype(bank.dtype, jnp.floating):
-        raise ValueError(f"{bank_name} must be floating-point [N, {NUM_STEPS}, {POSE_DIM}] motions, got "
-                         f"{describe_array(bank)}")
-    if key is not None:
-        typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-        if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
-            raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
-    if _is_concrete(image):
-        bad = count_non_finite(image)
-        if bad:
-            raise ValueError(f"image contains {bad} NaN or inf value(s); expected finite values in [0, 1]")
-        low, high = float(np.min(np.asarray(image))), float(np.max(np.asarray(image)))
-        if low < 0.0 or high > 1.0:
-            raise ValueError(f"image values must lie in [0, 1] (dmo_jax.data.network_image), got min {low:.4g}, "
-                             f"max {high:.4g}")
-    if _is_concrete(bank):
-        bad = count_non_finite(bank)
-        if bad:
-            raise ValueError(f"{bank_name} contains {bad} NaN or inf value(s); expected finite motions")
-
-
-def _shape_table(tree) -> dict[str, tuple]:
-    leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
-    return {jax.tree_util.keystr(path): tuple(getattr(leaf, "shape", np.shape(leaf))) for path, leaf in leaves}
-
-
-def _signature(tree) -> tuple:
-    leaves, treedef = jax.tree_util.tree_flatten(tree)
-    return treedef, tuple(tuple(getattr(leaf, "shape", np.shape(leaf))) for leaf in leaves)
-
-
-@functools.lru_cache(maxsize=None)
-def _expected_params(preset: Preset, which: str):
-    if which == "vae":
-        return VAENet(preset.vae).param_shapes()
-    return (EBMNet if which == "ebm" else DMONet)(preset).param_shapes()
-
-
-@functools.lru_cache(maxsize=None)
-def _expected_signature(preset: Preset, which: str) -> tuple:
-    return _signature(_expected_params(preset, which))
-
-
-def check_params(params, preset: Preset, which: str) -> None:
-    """Raise ``ValueError`` unless ``params`` (``Models.<which>``) have the parameter names and
-    shapes of ``preset``'s network, e.g. a checkpoint of another preset or variant."""
-    if _signature(params) == _expected_signature(preset, which):  # the fast path of every call
-        return
-    got, want = _shape_table(params), _shape_table(_expected_params(preset, which))
-    if got == want:
-        return
-    wrong = [k for k in want if k in got and got[k] != want[k]]
-    missing, extra = sorted(set(want) - set(got)), sorted(set(got) - set(want))
-    parts = []
-    if wrong:
-        parts.append(f"{wrong[0]} is {list(got[wrong[0]])}, expected {list(want[wrong[0]])}")
-    if missing:
-        parts.append(f"{len(missing)} parameter(s) missing (e.g. {missing[0]})")
-    if extra:
-        parts.append(f"{len(extra)} unexpected parameter(s) (e.g. {extra[0]})")
-    detail = "; ".join(parts)
-    raise ValueError(f"Models.{which} do not fit preset {preset.name!r} (variant {preset.variant!r}, "
-                     f"{preset.image_size}px): {detail}; were they trained with another preset or variant?")
 
 
 # --------------------------------------------------------------------------- helpers
@@ -285,6 +191,88 @@ def _top_n(preset: Preset, n: int, chunk: int, coarse: CoarseRanking | None, mod
     return Ranking(bank[top], -neg_energy, feature)
 
 
+class _Call(NamedTuple):
+    """What an optimiser of :data:`METHOD_REGISTRY` works with, for one image."""
+
+    preset: Preset
+    models: Models
+    image: jax.Array  # [S, S, 4]
+    energy: Callable[[jax.Array], jax.Array]  # motions [K, 101, 11] -> energies [K] under the image's F
+    R: int
+    settings: OptimizerSettings
+
+
+def _sort(call: _Call, start, key):
+    return start[:0]
+
+
+def _dmo(call: _Call, start, key):
+    dmo = DMONet(call.preset)
+    f_dmo = dmo.encode(call.models.dmo, call.image)
+    refined = dmo_unroll(dmo, call.models.dmo, f_dmo, start, call.R) if call.R > 0 else jnp.zeros((0,) + start.shape)
+    return refined.reshape((-1,) + start.shape[1:])
+
+
+def _gradient(call: _Call, start, key, noise: bool):
+    # time is never changed: its gradient is masked out before each update
+    masked_energy = lambda x: call.energy(start + _masked(x - start))
+    x = langevin(masked_energy, start, key, call.settings.langevin_step, call.settings.langevin_iters, noise)
+    return project_motions(start + _masked(x - start))
+
+
+def _vaebm(call: _Call, start, key, step: float):
+    vae = VAENet(call.preset.vae)
+    z0, _ = vae.encode(call.models.vae, start)
+    time = start[..., TIME]
+    decode = lambda z: vae.decode(call.models.vae, z).at[..., TIME].set(time)
+    z = langevin(lambda z: call.energy(decode(z)) + 0.5 * jnp.sum(z**2, axis=-1), z0, key, step,
+                 call.settings.vaebm_iters, True)
+    return project_motions(decode(z))
+
+
+def _dfo(call: _Call, start, key):
+    x, sigma = start, call.settings.dfo_noise
+    for k in jax.random.split(key, call.settings.dfo_iters):
+        k_pick, k_noise = jax.random.split(k)
+        pick = jax.random.categorical(k_pick, -call.energy(x), shape=(start.shape[0],))
+        x = project_motions(x[pick] + _masked(sigma * jax.random.normal(k_noise, x.shape)))
+        sigma *= call.settings.dfo_shrink
+    return x
+
+
+class Method(NamedTuple):
+    """A way to optimise the EBM's top n: ``optimise(call, start [n, 101, 11], key)`` returns the
+    new candidates; ``needs``: the networks it uses besides the EBM (fields of :class:`Models`);
+    ``uses_R``: whether R (the DMO's refinements) changes its result; ``candidates(n, R)``: K,
+    how many ranked candidates :func:`predict` returns (starts included)."""
+
+    optimise: Callable
+    needs: tuple[str, ...] = ()
+    uses_R: bool = False
+    candidates: Callable[[int, int], int] = lambda n, R: 2 * n
+
+
+#: The methods of :func:`predict` (docs/method.md, "Baselines"), by name.
+METHOD_REGISTRY: dict[str, Method] = {
+    "sort": Method(_sort, candidates=lambda n, R: n),
+    "dmo": Method(_dmo, ("dmo",), True, lambda n, R: n * (R + 1)),
+    "langevin": Method(functools.partial(_gradient, noise=True)),
+    "gd": Method(functools.partial(_gradient, noise=False)),
+    "vaebm-l": Method(lambda call, start, key: _vaebm(call, start, key, call.settings.vaebm_l_step), ("vae",)),
+    "vaebm-s": Method(lambda call, start, key: _vaebm(call, start, key, call.settings.vaebm_s_step), ("vae",)),
+    "dfo": Method(_dfo),
+}
+METHODS = tuple(METHOD_REGISTRY)
+#: Methods whose result depends on R (the DMO's refinements); the others ignore it.
+METHODS_USING_R = tuple(name for name, m in METHOD_REGISTRY.items() if m.uses_R)
+_NETWORK_NAMES = {"dmo": "DMO", "vae": "motion VAE"}
+
+
+def num_candidates(method: str, n: int, R: int) -> int:
+    """K, the number of ranked candidates :func:`predict` returns."""
+    return METHOD_REGISTRY[method].candidates(n, R)
+
+
 def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: OptimizerSettings, models: Models,
                 image, ranking: Ranking, key) -> Prediction:
     """Optimise one image's starting motions ``ranking.motions [n, 101, 11]`` with ``method`` and
@@ -294,39 +282,7 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
     f_ebm = ebm.encode(models.ebm, image) if ranking.feature is None else ranking.feature
     energy = lambda m: ebm.energy(models.ebm, f_ebm, m)
     start_energy = energy(start) if ranking.energies is None else ranking.energies
-    n = start.shape[0]
-
-    if method == "sort":
-        new = start[:0]
-    elif method == "dmo":
-        dmo = DMONet(preset)
-        f_dmo = dmo.encode(models.dmo, image)
-        refined = dmo_unroll(dmo, models.dmo, f_dmo, start, R) if R > 0 else jnp.zeros((0,) + start.shape)
-        new = refined.reshape((-1,) + start.shape[1:])
-    elif method in ("langevin", "gd"):
-        # time is never changed: its gradient is masked out before each update
-        masked_energy = lambda x: energy(start + _masked(x - start))
-        x = langevin(masked_energy, start, key, settings.langevin_step, settings.langevin_iters, method == "langevin")
-        new = project_motions(start + _masked(x - start))
-    elif method in ("vaebm-l", "vaebm-s"):
-        vae = VAENet(preset.vae)
-        z0, _ = vae.encode(models.vae, start)
-        time = start[..., TIME]
-        decode = lambda z: vae.decode(models.vae, z).at[..., TIME].set(time)
-        step = settings.vaebm_l_step if method == "vaebm-l" else settings.vaebm_s_step
-        z = langevin(lambda z: energy(decode(z)) + 0.5 * jnp.sum(z**2, axis=-1), z0, key, step,
-                      settings.vaebm_iters, True)
-        new = project_motions(decode(z))
-    elif method == "dfo":
-        x, sigma = start, settings.dfo_noise
-        for k in jax.random.split(key, settings.dfo_iters):
-            k_pick, k_noise = jax.random.split(k)
-            pick = jax.random.categorical(k_pick, -energy(x), shape=(n,))
-            x = project_motions(x[pick] + _masked(sigma * jax.random.normal(k_noise, x.shape)))
-            sigma *= settings.dfo_shrink
-        new = x
-    else:  # check_request rejects unknown names; this guards future additions
-        raise ValueError(f"unhandled method {method!r}")
+    new = METHOD_REGISTRY[method].optimise(_Call(preset, models, image, energy, R, settings), start, key)
 
     # the starts keep their bank-scoring energies: only the optimised motions are scored here
     cands = jnp.concatenate([start, new])
@@ -455,7 +411,7 @@ def _finite(result):
     huge magnitude overflow the networks."""
     energies = result.energies
     motions = result.candidates if isinstance(result, Prediction) else result.motions
-    if not _is_concrete(energies):
+    if not is_concrete(energies):
         return result
     bad = count_non_finite(energies) + count_non_finite(motions)
     if bad:
@@ -485,7 +441,7 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
     if not isinstance(preset, Preset):
         raise ValueError(f"preset must be a dmo_jax.config.Preset or a preset name, got {type(preset).__name__}")
     for name, value in (("n", n), ("R", R), ("chunk", chunk)):
-        if not _is_integer(value):
+        if not is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
     image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
     coarse = resolve_coarse(preset, coarse, n, jnp.shape(bank)[0] if jnp.ndim(bank) else 0)
@@ -494,18 +450,15 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
     if models.ebm is None:
         raise ValueError("every method needs the EBM parameters (Models.ebm)")
-    if method == "dmo" and models.dmo is None:
-        raise ValueError("method 'dmo' needs the DMO parameters (Models.dmo)")
-    if method in ("vaebm-l", "vaebm-s") and models.vae is None:
-        raise ValueError(f"method {method!r} needs the motion VAE parameters (Models.vae)")
+    needs = METHOD_REGISTRY[method].needs
+    for net in needs:
+        if getattr(models, net) is None:
+            raise ValueError(f"method {method!r} needs the {_NETWORK_NAMES[net]} parameters (Models.{net})")
     if chunk < 1:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
     if key is not None:
         key = key if hasattr(key, "dtype") else np.asarray(key)
     check_arrays(image, bank, key, bank_name)
-    check_params(models.ebm, preset, "ebm")
-    if method == "dmo":
-        check_params(models.dmo, preset, "dmo")
-    if method in ("vaebm-l", "vaebm-s"):
-        check_params(models.vae, preset, "vae")
+    for net in ("ebm",) + needs:
+        check_params(getattr(models, net), preset, net)
     return preset, image, bank, key, chunk, coarse

@@ -127,7 +127,7 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
     ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
     preset, other settings, or (given the training motions ``bank [N, 101, 11]``) other data."""
-    from .inference import METHODS, Models
+    from .inference import METHOD_REGISTRY, METHODS, Models
 
     methods = (method,) if isinstance(method, str) else tuple(method)
     unknown = [m for m in methods if m not in METHODS]
@@ -140,9 +140,10 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     load = lambda path, spec: training.load_params(path, _of_task(spec, task_name), data)[0]
     ebm = load(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
     dmo = vae = None
-    if "dmo" in methods:
+    needs = {net for m in methods for net in METHOD_REGISTRY[m].needs}
+    if "dmo" in needs:
         r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
         dmo = load(paths.dmo(preset, r), training.dmo_spec(preset, r))
-    if {"vaebm-l", "vaebm-s"} & set(methods):
+    if "vae" in needs:
         vae = load(paths.vae(), training.vae_spec(preset))
     return Models(ebm, dmo, vae)

@@ -40,11 +40,8 @@ def train_all_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES,
                         help="the EBM's negatives (paper Table 4): in-data+vae (default) or only-vae")
     parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="replace a training setting of the preset (dmo_jax.config.TrainConfig) or how the "
-                        "head reads depth (depth_cue, depth_cue_range), e.g. "
-                        "--set dmo_steps=2400; repeatable. A run of more steps continues a finished one in the "
-                        "same --workdir")
+    _add_set_argument(parser, "replace a setting of the preset; a run of more steps continues a finished one in "
+                      "the same --workdir")
     parser.add_argument("--seed", type=int, default=0, help="training seed: initialisation, batches, draws (default 0)")
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
@@ -96,6 +93,13 @@ def _add_preset_argument(parser) -> None:
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS),
                         help=f"network sizes and training settings (default {DEFAULT_PRESET}): tiny for tests, cpu "
                         "for a 2-core CPU at 64 px, paper = the paper's at 256 px")
+
+
+def _add_set_argument(parser, purpose: str) -> None:
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                        help=f"{purpose}: a training setting (train.FIELD, any dmo_jax.config.TrainConfig field, "
+                        "e.g. train.dmo_steps=2400) or how the head reads depth (head.depth_cue=true, "
+                        "head.depth_cue_range=0.1); the section may be left out; repeatable")
 
 
 def _add_recipe_argument(parser, purpose: str = "what the networks train on") -> None:
@@ -184,10 +188,8 @@ def evaluate_main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dmo-train-steps", type=int,
                         help="use the DMO trained with this many unrolled steps (Ours-5: 5, Ours-1: 1; "
                         "default the preset's)")
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="how the networks' head reads depth, if they were trained with a --set of it, e.g. "
-                        "--set depth_cue=true --set depth_cue_range=0.1 (as given to bin/train_all; checkpoints refuse "
-                        "other values)")
+    _add_set_argument(parser, "the networks trained with these settings, as given to bin/train_all (checkpoints "
+                      "refuse other values)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the methods' random draws (default 0)")
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--coarse", metavar="STRIDE,KEEP|full",
@@ -455,8 +457,7 @@ def ebm_misses_main(argv: list[str] | None = None) -> None:
     _add_preset_argument(parser)
     parser.add_argument("--workdir", default="runs", help="bin/train_all's work directory (default ./runs)")
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="how the EBM's head reads depth, as given to bin/train_all (e.g. --set depth_cue=true)")
+    _add_set_argument(parser, "the EBM trained with these settings, as given to bin/train_all")
     args = parser.parse_args(argv)
 
     from envs.cli import default_data_dir, task_names

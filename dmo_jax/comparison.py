@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from .config import CoarseRanking
+from .config import CoarseRanking, override_label
 
 # {row label: {task name: per-scene success, int (episodes,)}}, rows in the order first seen.
 Rows = dict[str, dict[str, np.ndarray]]
@@ -41,7 +41,8 @@ def row_label(result: dict, settings: dict) -> str:
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     recipe = settings.get("recipe") or "paper"
     label += "" if recipe == "paper" else f" [{recipe}]"
-    overrides = sorted(item for item in settings.get("set") or () if not item.startswith("dmo_inputs="))
+    overrides = sorted(label for label in map(override_label, settings.get("set") or ())
+                       if not label.startswith("dmo_inputs="))
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 

@@ -140,6 +140,12 @@ class TrainConfig:
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
+        for f in dataclasses.fields(self):  # counts and sizes are positive; the counts of extras may be 0
+            value = getattr(self, f.name)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup")) else 1
+                if value < low:
+                    raise ValueError(f"{f.name} must be {'>= 0' if low == 0 else 'positive'}, got {value}")
         if self.ebm_target_scale < 0:
             raise ValueError(f"ebm_target_scale must be >= 0 (metres; 0 = one-hot target), got {self.ebm_target_scale}")
         if self.lr <= 0:
@@ -228,37 +234,62 @@ class Preset:
         return dataclasses.replace(self, recipe=recipe, train=train)
 
     def with_overrides(self, overrides: list[str]) -> "Preset":
-        """This preset with settings replaced, each given as ``"field=value"`` with a field of
-        :class:`TrainConfig` (e.g. ``"dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES` (how
-        the head reads depth); raises ``ValueError`` naming the bad item and the valid fields."""
-        fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
-        changes, head = {}, {}
+        """This preset with settings replaced, each given as ``"section.field=value"``: any
+        :class:`TrainConfig` field (``"train.dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES`
+        (``"head.depth_cue=true"``); a field name alone stands for the one section that has it.
+        Values are checked by the section's own rules; raises ``ValueError`` naming the bad
+        item and what was expected."""
+        preset = self
         for item in overrides:
-            name, sep, text = item.partition("=")
-            if not sep or (name not in fields and name not in HEAD_OVERRIDES):
-                raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD one of "
-                                 f"{', '.join([*fields, *HEAD_OVERRIDES])}")
-            kind = type(getattr(self.head if name in HEAD_OVERRIDES else self.train, name))
+            key, sep, text = item.partition("=")
+            section, name = _override_target(key) if sep else (None, None)
+            if section is None:
+                raise ValueError(f"--set {item!r}: expected SECTION.FIELD=VALUE, e.g. train.dmo_steps=2400 or "
+                                 "head.depth_cue=true, with FIELD one of train."
+                                 f"{{{', '.join(f.name for f in dataclasses.fields(TrainConfig))}}} or head."
+                                 f"{{{', '.join(HEAD_OVERRIDES)}}} (the section may be left out)")
+            config = getattr(preset, section)
+            kind = type(getattr(config, name))
             try:
-                if kind is bool and text.lower() not in ("true", "false", "1", "0"):
+                if kind not in (bool, int, float, str) or (kind is bool and text.lower() not in ("true", "false", "1", "0")):
                     raise ValueError
                 value = text.lower() in ("true", "1") if kind is bool else kind(text)
             except ValueError:
                 raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
-            if name in HEAD_OVERRIDES:
-                head[name] = value
-                continue
-            if kind not in (str, bool) and value < (0 if kind is float or name.endswith(("_negatives", "_warmup")) else 1):
-                raise ValueError(f"--set {item!r}: {name} must be {'>= 0' if value < 0 else 'positive'}")
-            changes[name] = value
-        return dataclasses.replace(self, train=dataclasses.replace(self.train, **changes),
-                                   head=dataclasses.replace(self.head, **head))
+            try:
+                preset = dataclasses.replace(preset, **{section: dataclasses.replace(config, **{name: value})})
+            except ValueError as err:
+                raise ValueError(f"--set {item!r}: {err}") from None
+        return preset
 
 
-#: Head settings ``--set`` may change. They change what the networks compute (the cue's range
-#: without changing any parameter's shape), so checkpoints record them (``training``) and refuse
-#: to load under other values.
+#: What ``--set`` reaches, by the name before the dot: every training setting, and the head
+#: settings that change how it reads depth. Those change what the networks compute without
+#: changing any parameter's shape, so checkpoints record them (``training``) and refuse to
+#: load under other values.
+OVERRIDE_SECTIONS = ("train", "head")
 HEAD_OVERRIDES = ("depth_cue", "depth_cue_range")
+
+
+def _override_target(key: str) -> tuple[str | None, str | None]:
+    """``(section, field)`` that ``--set``'s ``key`` names (``"train.lr"``, or a field name only
+    one section has: ``"lr"``); ``(None, None)`` if none."""
+    owners = {"train": {f.name for f in dataclasses.fields(TrainConfig)}, "head": set(HEAD_OVERRIDES)}
+    section, dot, name = key.partition(".")
+    if dot:
+        return (section, name) if name in owners.get(section, ()) else (None, None)
+    found = [s for s, names in owners.items() if key in names]
+    return (found[0], key) if len(found) == 1 else (None, None)
+
+
+def override_label(item: str) -> str:
+    """``--set`` item as results name it: ``"train.lr=0.001"`` and ``"lr=0.001"`` both read
+    ``"lr=0.001"`` (the section is named only where the field alone would be ambiguous)."""
+    key, sep, text = item.partition("=")
+    section, name = _override_target(key)
+    if section is None or "." not in key:
+        return item
+    return f"{name}={text}" if _override_target(name) == (section, name) else item
 
 
 PAPER = Preset(name="paper", image_size=256)

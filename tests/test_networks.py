@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dmo_jax.benchmark import plain_encoder_forward
-from dmo_jax.config import PRESETS, VARIANTS, get_preset
+from dmo_jax.config import PRESETS, VARIANTS, get_preset, override_label
 from dmo_jax.encoder import ConvNeXtUNet
 from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
 from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
@@ -222,6 +222,14 @@ def test_train_overrides_replace_only_the_named_settings():
     assert cpu.with_overrides([]) == cpu
     cue = cpu.with_overrides(["depth_cue=true", "depth_cue_range=0.1"])
     assert (cue.head.depth_cue, cue.head.depth_cue_range, cue.train) == (True, 0.1, cpu.train)
+    # one syntax, SECTION.FIELD=VALUE; the section may be left out, and results name it the same
+    assert cpu.with_overrides(["train.dmo_steps=2400", "train.uv_weight=30", "train.ebm_vae_negatives=0"]) == longer
+    assert cpu.with_overrides(["head.depth_cue=true", "head.depth_cue_range=0.1"]) == cue
+    assert [override_label(i) for i in ("train.lr=0.1", "lr=0.1", "head.depth_cue=true")] == \
+        ["lr=0.1", "lr=0.1", "depth_cue=true"]
+    for bad in ("head.width=64", "encoder.out_dim=8", "train.depth_cue=true", "nope=1"):
+        with pytest.raises(ValueError, match=f"--set '{bad}': expected SECTION.FIELD=VALUE"):
+            cpu.with_overrides([bad])
 
 
 def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():

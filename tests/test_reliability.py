@@ -266,8 +266,9 @@ COMMAND_CASES = [
     _case("evaluate", EV + ["--data", "{nan_depth}", "--workdir", "{runs_good}"], "depth contains 2048 NaN or inf"),
     # bin/train_all
     _case("train_all", ["--tasks", "make_tea"], "unknown task 'make_tea'"),
-    _case("train_all", TA + ["--set", "steps=5"], "--set 'steps=5': expected FIELD=VALUE with FIELD one of lr,"),
-    _case("train_all", TA + ["--set", "dmo_steps"], "expected FIELD=VALUE"),
+    _case("train_all", TA + ["--set", "steps=5"], "--set 'steps=5': expected SECTION.FIELD=VALUE, e.g. train.dmo_steps=2400"),
+    _case("train_all", TA + ["--set", "dmo_steps"], "expected SECTION.FIELD=VALUE"),
+    _case("train_all", TA + ["--set", "head.width=3"], "--set 'head.width=3': expected SECTION.FIELD=VALUE"),
     _case("train_all", TA + ["--set", "dmo_steps=2.5"], "--set 'dmo_steps=2.5': dmo_steps takes a int, got '2.5'"),
     _case("train_all", TA + ["--set", "dmo_batch=0"], "--set 'dmo_batch=0': dmo_batch must be positive"),
     _case("train_all", TA + ["--set", "lr=-1e-3"], "lr must be >= 0"),

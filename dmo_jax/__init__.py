@@ -8,8 +8,8 @@ The public API is importable from the package root::
     models = dmo_jax.load_models("runs", "pick_up_cup", preset, method="dmo")
     out = dmo_jax.predict(models, image, bank, jax.random.key(0), preset=preset, n=8, R=1)
 
-Names are resolved lazily so that ``import dmo_jax`` does not start JAX (``envs`` sets XLA
-flags that must precede it).
+Names are resolved lazily so that ``import dmo_jax`` does not start JAX: a program that renders
+or executes calls ``envs.platform.setup()`` (the GL back-end and XLA flags) before JAX starts.
 """
 
 _EXPORTS = {

@@ -293,9 +293,10 @@ def training_step_benchmark(preset, repeats: int = 5) -> dict:
     :class:`~dmo_jax.config.Preset`. Returns per model the median step time, the compile
     time and the time for the preset's step count.
     """
+    from envs.motion import time_grid
+
     from . import training
     from .data import MotionDataset
-    from .motion import time_grid
 
     p = get_preset(preset) if isinstance(preset, str) else preset
     s = p.image_size
@@ -405,9 +406,10 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
     Peak memory is XLA's compiled memory analysis (arguments + outputs + temporaries).
     """
+    from envs.motion import time_grid
+
     from .checks import check_arrays
     from .inference import Models, _finite, predict, project_motions, refine, top_candidates
-    from .motion import time_grid
     from .networks import DMONet, EBMNet
     from .vae import VAENet
 

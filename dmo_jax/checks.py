@@ -8,8 +8,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.motion import NUM_STEPS, POSE_DIM, count_non_finite, describe_array
+
 from .config import Preset
-from .motion import NUM_STEPS, POSE_DIM, count_non_finite, describe_array
 from .networks import DMONet, EBMNet
 from .vae import VAENet
 

@@ -418,7 +418,7 @@ def _benchmark_section_in_subprocess(section: str, args) -> dict:
     argv += (["--preset", args.preset] if args.preset else []) + (["--torch-reference"] if args.torch_reference else [])
     print(f"[benchmark] {section} ...", file=sys.stderr)
     t0 = time.perf_counter()
-    code = "import envs; from dmo_jax.cli import benchmark_main; benchmark_main()"
+    code = "from envs.platform import setup; setup(); from dmo_jax.cli import benchmark_main; benchmark_main()"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
     proc = subprocess.run([sys.executable, "-c", code, *argv], cwd=root, env=env, stdout=subprocess.PIPE, text=True)
     if proc.returncode != 0:

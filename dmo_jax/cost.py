@@ -28,8 +28,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from envs.motion import NUM_STEPS, POSE_DIM
+
 from .config import VARIANTS, get_preset
-from .motion import NUM_STEPS, POSE_DIM
 from .networks import EBMNet, count_params
 
 #: Paper Table 3 (EBM): params (M), GMac "All", GMac "Reuse".

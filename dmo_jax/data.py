@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .motion import count_non_finite
+from envs.motion import count_non_finite
 
 DEPTH_NEAR, DEPTH_FAR = 0.5, 3.0
 

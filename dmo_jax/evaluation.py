@@ -14,10 +14,11 @@ from typing import Sequence
 import jax
 import numpy as np
 
+from envs.motion import Z
+
 from .config import Preset
 from .data import network_image
 from .inference import METHODS_USING_R, CoarseRanking, OptimizerSettings, refine, resolve_coarse, top_candidates
-from .motion import Z
 
 
 def _padded_batches(images: np.ndarray, batch: int):
@@ -129,7 +130,7 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
         out["mean_start_error_m"] = round(float(np.mean(start_errors)), 4)
         out["mean_optimised_error_m"] = round(float(np.mean(errors[~is_start])), 4)
     if camera_pose is not None:
-        from .motion import vector_to_pose
+        from envs.motion import vector_to_pose
 
         position, rotation = (jnp.asarray(x, jnp.float32) for x in camera_pose)
         lowest = lambda m: np.asarray(vector_to_pose(jnp.asarray(m, jnp.float32), position, rotation,  # noqa: E731

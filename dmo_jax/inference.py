@@ -39,11 +39,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, matrix_to_rot6d,
+                         rot6d_to_matrix)
+
 from .checks import check_arrays, check_params, is_concrete, is_integer
 from .config import CoarseRanking, Preset, get_preset
 from .losses import dmo_unroll
-from .motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, matrix_to_rot6d,
-                     rot6d_to_matrix)
 from .networks import DMONet, EBMNet
 from .vae import VAENet
 

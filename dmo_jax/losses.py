@@ -7,8 +7,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from envs.motion import GRASP, ROT6D, UV, Z, camera_positions, rot6d_to_matrix
+
 from .config import TrainConfig
-from .motion import GRASP, ROT6D, UV, Z, camera_positions, rot6d_to_matrix
 
 NEGATIVE_MODES = ("in-data+vae", "only-vae")
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from .motion import camera_positions
+from envs.motion import camera_positions
 
 #: Neighbours stored per motion (the hard negatives and the held-out ranking draw from the first ones).
 DEFAULT_K = 64

@@ -36,10 +36,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.motion import NUM_STEPS, POSE_DIM, POSE_KEYS
+
 from .config import HeadConfig, Preset, get_preset
 from .data import DEPTH_FAR, DEPTH_NEAR
 from .encoder import ConvNeXtUNet, PatchConv, gelu
-from .motion import NUM_STEPS, POSE_DIM, POSE_KEYS
 
 Params = Any
 

@@ -26,11 +26,12 @@ from flax import struct
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from envs.progress import Progress
+
 from . import losses, run_metrics
 from .config import Preset, TrainConfig
 from .data import MotionDataset, augment_batch
 from .networks import DMONet, EBMNet
-from .progress import Progress
 from .vae import VAENet
 
 MODELS = ("vae", "ebm", "dmo")

@@ -22,9 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.motion import NUM_STEPS, POSE_DIM, POSE_KEYS, describe_array, time_grid
+
 from .config import Preset, VAEConfig, get_preset
 from .encoder import gelu
-from .motion import NUM_STEPS, POSE_DIM, POSE_KEYS, describe_array, time_grid
 from .networks import MLP, MultiHeadAttention, sinusoidal_positions
 
 Params = Any

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .motion import UV, denormalize_uv
+from envs.motion import UV, denormalize_uv
 
 #: Candidate paths are coloured by energy rank with this colour map: rank 1 (lowest energy)
 #: blue, then green, yellow, up to red.

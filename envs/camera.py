@@ -68,9 +68,11 @@ class SceneRenderer:
         try:
             self._renderer = mujoco.Renderer(model, image_size, image_size)
         except Exception as err:  # mujoco raises several types when no GL context can be made
+            backend = os.environ.get("MUJOCO_GL")
+            setup = "" if backend else "call envs.platform.setup() before mujoco is imported, or "
             raise RuntimeError(
-                f"cannot create an OpenGL context for rendering (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): "
-                f"{err}. To fix: {gl.INSTALL_HINT}"
+                f"cannot create an OpenGL context for rendering (MUJOCO_GL={backend!r}): "
+                f"{err}. To fix: {setup}{gl.INSTALL_HINT}"
             ) from err
         self._camera = camera
         self.model = model

@@ -246,7 +246,7 @@ def execute_main(argv: list[str] | None = None) -> None:
 def load_motion_file(path: str) -> np.ndarray:
     """The ``[101, 11]`` float32 motion stored in the ``.npy`` file ``path``; fails (exit 2) with
     one line if the file is missing, unreadable, not one array, or not a finite motion."""
-    from dmo_jax.motion import check_motions
+    from envs.motion import check_motions
 
     try:
         with open(path, "rb") as f:

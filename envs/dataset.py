@@ -8,7 +8,7 @@ file            dtype, shape               content
 ==============  =========================  ==============================================
 ``rgb.npy``     uint8 ``[N, S, S, 3]``     first frame of each episode, front camera
 ``depth.npy``   float32 ``[N, S, S]``      its metric depth (m, along the optical axis)
-``motions.npy`` float32 ``[N, 101, 11]``   the expert's motion (``dmo_jax.motion`` layout)
+``motions.npy`` float32 ``[N, 101, 11]``   the expert's motion (``envs.motion`` layout)
 ``seeds.npy``   int64 ``[N]``              seed that rebuilds each scene (``task.reset``)
 ``meta.json``   JSON                       task, split, counts, image size, camera K and
                                            pose, generator version, base seed, timing
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dmo_jax import motion as motion_lib
-from dmo_jax.progress import Progress
+from envs import motion as motion_lib
+from envs.progress import Progress
 
 GENERATOR_VERSION = 1
 SPLITS = ("train", "test")

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dmo_jax import motion as motion_lib
 from envs import execution
+from envs import motion as motion_lib
 from envs.dataset import Split
 
 #: The paper's column order and abbreviations.

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from dmo_jax import motion as motion_lib
+from envs import motion as motion_lib
 from envs.camera import Camera, front_camera
 from envs.kinematics import ArmChain, IKConfig, solve_ik_path
 from envs.panda import ARM_JOINTS, GRIPPER_OPEN, HOME_QPOS

@@ -1,8 +1,8 @@
 """Headless OpenGL selection for MuJoCo's renderer.
 
 MuJoCo reads ``MUJOCO_GL`` once, when its GL context module is first imported, so the
-choice is made here, before anything renders: a user's setting is kept; otherwise
-EGL (Mesa's surfaceless llvmpipe works without a GPU) is preferred, then OSMesa.
+choice is made before mujoco is imported (``envs.platform.setup``): a user's setting is kept;
+otherwise EGL (Mesa's surfaceless llvmpipe works without a GPU) is preferred, then OSMesa.
 """
 from __future__ import annotations
 

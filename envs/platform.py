@@ -1,8 +1,11 @@
-"""XLA settings the simulator needs, applied before JAX initialises its backend."""
+"""Process set-up the simulator needs: the headless OpenGL back-end and XLA's settings, applied
+before MuJoCo or JAX initialise (:func:`setup`); XLA's compilation cache."""
 from __future__ import annotations
 
 import os
 import sys
+
+from envs.gl import select_gl_backend
 
 # XLA's CPU fusion emitters compile MJX's physics step into a pathologically slow program
 # (measured here: ~31 steps/s at batch 16 with them, thousands without). The flag only
@@ -10,11 +13,23 @@ import sys
 _CPU_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
 
 
+def setup() -> None:
+    """Select the headless OpenGL back-end (:func:`envs.gl.select_gl_backend`), then add XLA's
+    CPU flags (:func:`configure_jax_for_cpu`).
+
+    Must run before mujoco or jax are imported: MuJoCo reads ``MUJOCO_GL`` when its GL module is
+    first imported, XLA reads ``XLA_FLAGS`` when JAX starts its backend. Settings the user made
+    are kept, and calling it again changes nothing. Every command in ``bin/`` calls it first.
+    """
+    select_gl_backend()
+    configure_jax_for_cpu()
+
+
 def configure_jax_for_cpu() -> None:
     """Append the CPU flags to ``XLA_FLAGS`` unless the user already set them.
 
-    XLA reads the variable when the backend starts, so this is a no-op (with a warning)
-    once JAX has created a device.
+    XLA reads the variable when the backend starts, so once JAX has created a device this
+    changes nothing.
     """
     current = os.environ.get("XLA_FLAGS", "")
     missing = [f for f in _CPU_FLAGS if f.split("=")[0] not in current]

@@ -5,7 +5,7 @@ previous keyframe. Between keyframes the position follows a minimum-jerk profile
 along the straight line and the orientation a slerp on the same profile; the gripper
 switches at the keyframe it is given for. The densely sampled trajectory is converted
 to the camera frame and resampled into the 101-pose motion with the splines of
-:func:`dmo_jax.motion.resample_episode`, exactly like a recorded episode.
+:func:`envs.motion.resample_episode`, exactly like a recorded episode.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from dmo_jax import motion as motion_lib
+from envs import motion as motion_lib
 from envs.camera import Camera
 
 

@@ -1,5 +1,5 @@
-"""Import the simulator package first: it selects the GL back-end and XLA's CPU flags,
-which must happen before MuJoCo renders or JAX initialises."""
+"""Set the process up first (``envs.platform.setup``: the headless GL back-end and XLA's CPU
+flags), before any test module imports mujoco or jax."""
 import atexit
 import os
 import shutil
@@ -12,4 +12,6 @@ _CACHE = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
 atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 os.environ.setdefault("DMO_JAX_COMPILATION_CACHE", _CACHE)
 
-import envs  # noqa: F401,E402
+from envs.platform import setup  # noqa: E402
+
+setup()

@@ -3,7 +3,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
+from envs.motion import NUM_STEPS, POSE_DIM, time_grid
 
 
 def random_params(net, seed=0):

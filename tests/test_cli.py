@@ -102,7 +102,7 @@ def test_every_command_help_describes_every_option_and_writes_nothing(tmp_path, 
 
 
 def test_progress_off_a_terminal_prints_a_line_per_quarter_of_the_work(capsys):
-    from dmo_jax.progress import Progress
+    from envs.progress import Progress
 
     progress = Progress("train ebm", 500, initial=100)
     for done in range(101, 501):

@@ -140,7 +140,7 @@ def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
 
 def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down():
     from dmo_jax.evaluation import motion_diagnostics
-    from dmo_jax.motion import pose_to_vector, time_grid
+    from envs.motion import pose_to_vector, time_grid
 
     K = np.array([[50.0, 0, 31.5], [0, 50.0, 31.5], [0, 0, 1]], np.float32)
     cam_pos = np.array([1.65, 0.0, 1.88], np.float32)

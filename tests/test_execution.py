@@ -3,8 +3,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from dmo_jax import motion as M
 from envs import demo, execution
+from envs import motion as M
 from envs.execution import ExecutionConfig, controls, execute, plan
 
 WORLD = demo.default_world(256)

@@ -6,8 +6,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from dmo_jax import motion as M
 from envs import demo
+from envs import motion as M
 
 FLOATS = st.floats(-1.0, 1.0, allow_nan=False, width=32)
 WORLD = demo.default_world(256)

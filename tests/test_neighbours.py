@@ -15,9 +15,9 @@ import pytest
 from dmo_jax import losses, neighbours, workflow
 from dmo_jax.config import RECIPES, get_preset
 from dmo_jax.data import MotionDataset
-from dmo_jax.motion import NUM_STEPS, POSE_DIM
 from dmo_jax.vae import VAENet
 from envs import dataset
+from envs.motion import NUM_STEPS, POSE_DIM
 from envs.tasks import get_task
 
 from helpers import random_params

@@ -10,9 +10,9 @@ import pytest
 from dmo_jax.benchmark import plain_encoder_forward
 from dmo_jax.config import PRESETS, VARIANTS, get_preset, override_label
 from dmo_jax.encoder import ConvNeXtUNet
-from dmo_jax.motion import NUM_STEPS, POSE_DIM, time_grid
 from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
 from dmo_jax.vae import VAENet
+from envs.motion import NUM_STEPS, POSE_DIM, time_grid
 from helpers import random_motions, random_params
 
 

@@ -31,11 +31,11 @@ from dmo_jax import training
 from dmo_jax.cli import benchmark_main, compare_main, cost_main, evaluate_main, train_all_main
 from dmo_jax.config import get_preset
 from dmo_jax.inference import Models, predict
-from dmo_jax.motion import time_grid
 from dmo_jax.networks import DMONet, EBMNet
 from dmo_jax.vae import VAENet
 from envs import dataset
 from envs.cli import execute_main, generate_data_main, render_main, task_report_main
+from envs.motion import time_grid
 from helpers import random_params
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -446,7 +446,8 @@ _TRAIN = r"""
 import dataclasses, sys, time
 from pathlib import Path
 sys.path[:0] = [sys.argv[1], sys.argv[1] + "/tests"]
-import envs  # noqa: F401
+from envs.platform import setup
+setup()
 import jax, numpy as np
 from dmo_jax import data as data_lib, training
 from dmo_jax.config import get_preset
@@ -609,7 +610,8 @@ _GENERATE = r"""
 import io, sys, time
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])
-import envs  # noqa: F401
+from envs.platform import setup
+setup()
 import numpy as np
 from envs import dataset
 from envs.tasks import get_task

@@ -253,7 +253,9 @@ def test_augmentation_changes_rgb_only():
 _TWO_DEVICES = r"""
 import sys, json
 sys.path.insert(0, sys.argv[1])
-import envs, jax, optax, numpy as np
+from envs.platform import setup
+setup()
+import jax, optax, numpy as np
 from dmo_jax import training, data as data_lib
 from dmo_jax.config import get_preset
 import dataclasses

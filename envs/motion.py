@@ -203,7 +203,7 @@ def check_motions(motions, what: str = "motions", single: bool = False) -> np.nd
     """
     if not hasattr(motions, "dtype") or not hasattr(motions, "shape"):
         raise ValueError(f"{what} must be an array of motions, got {type(motions).__name__}")
-    layout = f"T = {NUM_STEPS} poses of {POSE_DIM} numbers, the [E, T, {POSE_DIM}] layout of dmo_jax.motion"
+    layout = f"T = {NUM_STEPS} poses of {POSE_DIM} numbers, the [E, T, {POSE_DIM}] layout of envs.motion"
     expected = f"[{NUM_STEPS}, {POSE_DIM}]" if single else f"[N, {NUM_STEPS}, {POSE_DIM}]"
     if not jnp.issubdtype(motions.dtype, jnp.floating):
         raise ValueError(f"{what} must be floating-point {expected} motions, got {describe_array(motions)}")

@@ -95,7 +95,7 @@ class VAEConfig:
         return self.d_model
 
 
-DMO_INPUTS = ("decoded", "offset", "mixed")
+DMO_INPUTS = ("decoded", "offset")
 
 
 @dataclass(frozen=True)
@@ -131,7 +131,7 @@ class TrainConfig:
     dmo_input_sigma: float = 1.0  # DMO input z = mu + 1 sigma eps
     # "decoded": the DMO's inputs are the VAE's decodings of z (the paper's). "offset": the clean
     # motion plus (decoding of z - decoding of mu), the same perturbation without the VAE's
-    # reconstruction error, which bank motions do not have. "mixed": half of each batch of either.
+    # reconstruction error, which bank motions do not have.
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
 

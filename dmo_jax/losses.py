@@ -133,14 +133,11 @@ def ebm_eval(ebm, params, images, candidates, images_per_chunk: int = 4):
 def dmo_inputs(vae, vae_params, motions, key, cfg: TrainConfig) -> jnp.ndarray:
     """The DMO's perturbed inputs ``[B, 101, 11]`` for clean ``motions [B, 101, 11]``: VAE samples at
     ``cfg.dmo_input_sigma``, or with ``cfg.dmo_inputs == "offset"`` the motions moved by the
-    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1]);
-    ``"mixed"``: offset inputs at even batch rows, VAE samples at odd ones."""
+    samples' difference from the decoding of the posterior mean (grasp clipped to [0, 1])."""
     samples = vae.sample_around(vae_params, motions, key, cfg.dmo_input_sigma)
-    if cfg.dmo_inputs in ("offset", "mixed"):
-        offset = motions + samples - vae.decode(vae_params, vae.encode(vae_params, motions)[0])
-        offset = offset.at[..., GRASP].set(jnp.clip(offset[..., GRASP], 0.0, 1.0))
-        even = (jnp.arange(motions.shape[0]) % 2 == 0)[:, None, None]
-        samples = offset if cfg.dmo_inputs == "offset" else jnp.where(even, offset, samples)
+    if cfg.dmo_inputs == "offset":
+        samples = motions + samples - vae.decode(vae_params, vae.encode(vae_params, motions)[0])
+        samples = samples.at[..., GRASP].set(jnp.clip(samples[..., GRASP], 0.0, 1.0))
     return jax.lax.stop_gradient(samples)
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from .config import CoarseRanking, override_label
+from .config import CoarseRanking, TrainConfig, override_label, recipe_settings
 
 # {row label: {task name: per-scene success, int (episodes,)}}, rows in the order first seen.
 Rows = dict[str, dict[str, np.ndarray]]
@@ -24,7 +24,7 @@ def row_label(result: dict, settings: dict) -> str:
     two-stage bank scoring other than the ``cpu`` preset's 4/64, which kept the full scoring's
     top 8 in every test scene of the nine tasks and so shares its row); a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
-    inputs than the paper's ``(inputs offset)``, another architecture ``(wo_concat)`` or EBM
+    inputs than its recipe's ``(inputs offset)``, another architecture ``(wo_concat)`` or EBM
     negatives ``(only-vae negatives)``, networks of a recipe other than the paper's
     ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
@@ -34,12 +34,12 @@ def row_label(result: dict, settings: dict) -> str:
         label += " (coarse {}/{})".format(*result["coarse"])
     trained = settings.get("dmo_train_steps")
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""
-    inputs = settings.get("dmo_inputs") or "decoded"
-    label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != "decoded" else ""
+    recipe = settings.get("recipe") or "paper"
+    inputs, own = settings.get("dmo_inputs") or "decoded", recipe_settings(recipe, TrainConfig())["dmo_inputs"]
+    label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own else ""
     variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
-    recipe = settings.get("recipe") or "paper"
     label += "" if recipe == "paper" else f" [{recipe}]"
     overrides = sorted(label for label in map(override_label, settings.get("set") or ())
                        if not label.startswith("dmo_inputs="))

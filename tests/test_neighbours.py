@@ -139,11 +139,11 @@ def test_graded_targets_rank_candidates_by_their_distance_from_the_positive():
 def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")
-    assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale) == \
-        ("bank", 6, 16, 0.01)
+    assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale,
+            cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, "offset")
     assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
     paper = get_preset("cpu", recipe="paper").train
-    assert (paper.ebm_near_negatives, paper.ebm_target_scale) == (0, 0.0)
+    assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.dmo_inputs) == (0, 0.0, "decoded")
     with pytest.raises(ValueError, match="unknown recipe 'ibc'"):
         get_preset("cpu", recipe="ibc")
     with pytest.raises(ValueError, match="exceeds ebm_gt_negatives"):
@@ -175,7 +175,7 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
         dmo = next(r for r in payload["results"] if r["method"] == "dmo")
         assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
     assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
-    # one VAE and one DMO (they do not depend on the negatives), an EBM per recipe
-    ebms = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert ebms == ["dmo-R2", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm"]
+    # one VAE; an EBM and a DMO (decoded or offset inputs) per recipe
+    nets = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
+    assert nets == ["dmo-R2", "dmo-R2-offset", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm"]
     assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()

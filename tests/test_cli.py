@@ -49,16 +49,6 @@ def test_execute_rejects_a_malformed_motion(tmp_path):
     assert proc.returncode != 0 and "[E, T, 11]" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_benchmark_data_section_reports_rate_and_memory(tmp_path):
-    out = tmp_path / "bench.json"
-    proc = _run("bin/benchmark", "--only", "data", "--episodes", "3", "--out", str(out))
-    result = json.loads(out.read_text())
-    assert result["episodes"] == 3 and result["seconds"] > 0
-    assert abs(result["episodes_per_s"] - 3 / result["seconds"]) < 0.01
-    assert result["peak_rss_mb"] > 50  # the process holds at least MuJoCo and numpy
-    assert "episodes/s" in proc.stdout and "peak resident memory" in proc.stdout
-
-
 def test_commands_started_by_another_python_run_in_the_project_environment():
     import os
 

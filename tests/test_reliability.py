@@ -686,7 +686,7 @@ def test_native_evaluation_is_deterministic(generated):
     root, _ = generated
     runs = [evaluate_world_method(TASK, "expert", 8, root, backend="mujoco") for _ in range(2)]
     for r in runs:
-        assert r.pop("seconds") >= 0
+        r.pop("seconds")  # wall time, the one field that may differ
     assert runs[0] == runs[1]
     assert runs[0]["episodes"] == 8 and runs[0]["successes"] == 8
 

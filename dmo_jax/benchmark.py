@@ -318,7 +318,7 @@ def training_step_benchmark(preset, repeats: int = 5) -> dict:
     for name, (spec, extra) in specs.items():
         tx = training.make_optimizer(spec.config)
         params = spec.init_fn(jax.random.key(1))
-        state = training.TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
+        state = training.TrainState.create(params, tx)
         step = jax.jit(training.make_train_step(spec, tx))
         times = []
         for i in range(repeats + 1):

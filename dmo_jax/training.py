@@ -48,6 +48,11 @@ class TrainState:
     opt_state: Any
     skipped: jax.Array  # non-finite steps skipped so far
 
+    @classmethod
+    def create(cls, params, tx: optax.GradientTransformation) -> "TrainState":
+        """Step 0 of a run: ``params`` and ``tx``'s initial state."""
+        return cls(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
+
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
     """Adam at ``cfg.lr``, multiplied by ``cfg.lr_decay`` every ``cfg.lr_decay_every`` steps."""
@@ -425,7 +430,7 @@ def _fit(spec, dataset, workdir, extra, seed, log_every, eval_every, checkpoint_
             raise TrainingError(f"checkpoint at {workdir} is at step {latest}, beyond the {spec.steps} steps "
                                 f"asked for; use another --workdir or at least {latest} steps")
     params = spec.init_fn(jax.random.fold_in(jax.random.key(seed), 0))
-    state = TrainState(jnp.zeros((), jnp.int32), params, tx.init(params), jnp.zeros((), jnp.int32))
+    state = TrainState.create(params, tx)
     if latest is not None:
         restored = _restore(mngr, latest, ocp.args.Composite(state=ocp.args.StandardRestore(_host(state))), workdir)
         state = jax.tree.map(jnp.asarray, restored["state"])

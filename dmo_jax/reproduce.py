@@ -1,4 +1,5 @@
-"""``bin/reproduce``: the paper's success tables, rebuilt from nothing but this repository.
+"""The paper's success tables, rebuilt from nothing but this repository (``bin/reproduce``, whose
+command line is ``dmo_jax.commands.reproduce``).
 
 For each table and task it generates the data that is missing, trains the networks that are
 not trained (``workflow.train_task`` skips and resumes), evaluates, and records every result in
@@ -17,7 +18,6 @@ import datetime
 import json
 import os
 import platform
-import sys
 import time
 from importlib import metadata
 from pathlib import Path
@@ -180,7 +180,7 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
               command: Sequence[str] = (), log: Callable[[str], None] = print) -> dict[str, Path]:
     """Make whatever results of ``tables`` on ``tasks`` are missing from ``results_dir`` and
     return each table's file. ``recipe``: the networks of Tables 2-6 (None: the preset's)."""
-    from envs.cli import write_json
+    from envs.commands.common import write_json
 
     results_dir = Path(results_dir)
     results_dir.mkdir(parents=True, exist_ok=True)
@@ -240,63 +240,3 @@ def update_report(report: Path, sections: dict[str, str]) -> None:
         else:
             text = text.rstrip("\n") + f"\n\n### {TITLES[table]}\n\n{begin}\n{body}\n{end}\n"
     atomic_write_text(report, text)
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``bin/reproduce``."""
-    import argparse
-
-    from envs.cli import BACKEND_HELP, default_data_dir, fail, make_output_dir, positive, task_help, task_names
-
-    from .cli import _add_preset_argument, _add_recipe_argument
-
-    parser = argparse.ArgumentParser(
-        description="Rebuild the paper's success tables: generate missing data, train what is not trained, "
-        "evaluate, write results/table<N>.json and render the tables into BENCHMARKS.md. Resumable: what is "
-        "recorded is skipped.")
-    parser.add_argument("--tables", default=",".join(TABLES),
-                        help=f"comma-separated, of {', '.join(TABLES)} (default all): " + "; ".join(
-                            f"{t}: {TITLES[t].split(': ')[1]}" for t in TABLES))
-    parser.add_argument("--tasks", default="all", help=task_help() + " (default all)")
-    _add_preset_argument(parser)
-    _add_recipe_argument(parser, "the networks of Tables 2, 4, 5 and 6 (Table 1 runs every recipe)")
-    parser.add_argument("--episodes", type=int, default=100, help="test scenes per task (default 100)")
-    parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
-    parser.add_argument("--workdir", default="runs", help="checkpoints (default ./runs)")
-    parser.add_argument("--results", default="results", help="where the table files go (default ./results)")
-    parser.add_argument("--report", default="BENCHMARKS.md",
-                        help="the Markdown file the tables are rendered into (default ./BENCHMARKS.md)")
-    parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"), help=BACKEND_HELP)
-    parser.add_argument("--seed", type=int, default=0, help="training and prediction seed (default 0)")
-    args = parser.parse_args(argv)
-    tables = [t.strip() for t in args.tables.split(",") if t.strip()]
-    if not tables or any(t not in TABLES for t in tables):
-        fail(f"--tables {args.tables!r}: expected comma-separated tables of {', '.join(TABLES)}")
-    positive("--episodes", args.episodes)
-
-    from envs.dataset import DatasetError
-    from envs.platform import enable_compilation_cache
-
-    from . import training
-    from .config import get_preset
-
-    enable_compilation_cache()
-    try:
-        preset = get_preset(args.preset, recipe=args.recipe)
-    except ValueError as err:
-        fail(str(err))
-    names = task_names(args.tasks)
-    data = args.data or default_data_dir(preset.image_size)
-    for path, option in ((args.workdir, "--workdir"), (args.results, "--results"), (data, "--data")):
-        make_output_dir(path, option)
-    log = lambda m: print(m, file=sys.stderr)  # noqa: E731
-    try:
-        files = reproduce(tables, names, preset, args.episodes, results_dir=args.results, data=data,
-                          workdir=args.workdir, backend=args.backend, seed=args.seed,
-                          command=sys.argv[1:] if argv is None else argv, log=log)
-    except (DatasetError, training.TrainingError, ValueError, OSError) as err:
-        fail(str(err))
-    sections = {t: render(path, t) for t, path in files.items()}
-    update_report(Path(args.report), sections)
-    for table, body in sections.items():
-        print(f"\n{TITLES[table]}\n\n{body}")

@@ -66,15 +66,12 @@ def test_commands_started_by_another_python_run_in_the_project_environment():
 def test_every_command_help_describes_every_option_and_writes_nothing(tmp_path, monkeypatch, capsys):
     import argparse
 
-    from dmo_jax import cli as learning
-    from dmo_jax import reproduce
-    from envs import cli as world
+    from dmo_jax.commands import benchmark, compare, cost, ebm_misses, evaluate, reproduce, train_all
+    from envs.commands import execute, generate_data, render, task_report
 
-    commands = {"benchmark": learning.benchmark_main, "compare": learning.compare_main, "cost": learning.cost_main,
-                "ebm_misses": learning.ebm_misses_main, "evaluate": learning.evaluate_main,
-                "train_all": learning.train_all_main, "execute": world.execute_main,
-                "generate_data": world.generate_data_main, "render": world.render_main,
-                "task_report": world.task_report_main, "reproduce": reproduce.main}
+    commands = {module.__name__.rsplit(".", 1)[1]: module.main
+                for module in (benchmark, compare, cost, ebm_misses, evaluate, reproduce, train_all, execute,
+                               generate_data, render, task_report)}
     assert set(commands) | {"demo", "setup", "test"} == {p.name for p in (ROOT / "bin").iterdir()
                                                         if p.is_file() and not p.name.startswith("_")}
     monkeypatch.chdir(tmp_path)

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from dmo_jax.cli import compare_main
+from dmo_jax.commands import compare
 from dmo_jax.comparison import comparison_report, load_evaluations, paired_counts, sign_test
 
 
@@ -62,19 +62,19 @@ def test_mixing_two_files_of_the_same_row_and_task_is_refused(tmp_path):
 
 def test_command_prints_the_report_and_rejects_an_unknown_row(tmp_path, capsys):
     a = _evaluation(tmp_path / "a.json", [("dmo", "close_box", [1, 1, 0]), ("gd", "close_box", [0, 1, 0])])
-    compare_main([str(a)])
+    compare.main([str(a)])
     out = capsys.readouterr().out
     assert "| gd n=8 | +1 / −0 |" in out and "on 1 of 1 tasks (CB)" in out
     with pytest.raises(SystemExit) as exit_info:
-        compare_main([str(a), "--against", "langevin n=8"])
+        compare.main([str(a), "--against", "langevin n=8"])
     assert exit_info.value.code == 2
     assert "no row 'langevin n=8' to compare against; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err
 
-    compare_main([str(a), "--rows", "gd n=8, dmo n=8 R=1"])
+    compare.main([str(a), "--rows", "gd n=8, dmo n=8 R=1"])
     out = capsys.readouterr().out
     assert out.index("| gd n=8 | 33 |") < out.index("| dmo n=8 R=1 | 67 |")
     with pytest.raises(SystemExit):
-        compare_main([str(a), "--rows", "dmo n=8 R=1,dfo n=8"])
+        compare.main([str(a), "--rows", "dmo n=8 R=1,dfo n=8"])
     assert "no row 'dfo n=8' in these files; rows: dmo n=8 R=1, gd n=8" in capsys.readouterr().err
 
 
@@ -101,6 +101,6 @@ def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, caps
     payload = json.loads(path.read_text())
     payload["results"][0].update(first_error_m=0.0123, first_depth_error_m=0.004)
     path.write_text(json.dumps(payload))
-    compare_main([str(path)])
+    compare.main([str(path)])
     table = capsys.readouterr().out.split("first-ranked motion's distance")[1]
     assert "| dmo n=8 R=1 | 1.2 (0.4) |" in table and "sort" not in table  # sort has no distances here

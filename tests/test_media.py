@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from dmo_jax import visualize
-from envs import camera, cli, video
+from envs import camera, video
+from envs.commands import render
 
 
 def _blocks(frames: int, h: int, w: int) -> np.ndarray:
@@ -126,12 +127,12 @@ def test_depth_range_ignores_the_far_plane():
     depth = np.full((10, 10), 125.0, np.float32)  # the empty background at the far plane
     depth[:6] = np.linspace(1.0, 3.0, 60).reshape(6, 10)
     depth[0, 0] = np.inf
-    near, far = cli._depth_range(depth, 125.0)
+    near, far = render._depth_range(depth, 125.0)
     assert 1.0 <= near < 1.1 and 2.9 < far <= 3.0
 
 
 def test_contact_sheet_labels_each_tile():
-    sheet = cli._contact_sheet(["reach_target", "push_button"], 32, 0)
+    sheet = render._contact_sheet(["reach_target", "push_button"], 32, 0)
     # two tiles of 32 px drawn 8x (256 px) side by side, under a 22 px label band
     assert sheet.shape == (256 + 22, 512, 3)
     band = sheet[:22]

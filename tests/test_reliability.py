@@ -1,6 +1,6 @@
 """Reliability.
 
-1. Malformed inputs: every command (called in-process through its ``*_main(argv)``) and
+1. Malformed inputs: every command (called in-process through its module's ``main(argv)``) and
    ``dmo_jax.inference.predict`` fail with one line saying what was wrong and what was
    expected — exit status 2 and ``error: ...`` on stderr (no traceback) for commands,
    ``ValueError`` for ``predict``. Two parametrized tables.
@@ -28,13 +28,13 @@ import orbax.checkpoint as ocp
 import pytest
 
 from dmo_jax import training
-from dmo_jax.cli import benchmark_main, compare_main, cost_main, evaluate_main, train_all_main
+from dmo_jax.commands import benchmark, compare, cost, evaluate, train_all
 from dmo_jax.config import get_preset
 from dmo_jax.inference import Models, predict
 from dmo_jax.networks import DMONet, EBMNet
 from dmo_jax.vae import VAENet
 from envs import dataset
-from envs.cli import execute_main, generate_data_main, render_main, task_report_main
+from envs.commands import execute, generate_data, render, task_report
 from envs.motion import time_grid
 from helpers import random_params
 
@@ -43,9 +43,9 @@ TINY = get_preset("tiny")
 TASK = "reach_target"
 
 COMMANDS = {
-    "render": render_main, "execute": execute_main, "generate_data": generate_data_main,
-    "task_report": task_report_main, "evaluate": evaluate_main, "train_all": train_all_main,
-    "cost": cost_main, "benchmark": benchmark_main, "compare": compare_main,
+    "render": render.main, "execute": execute.main, "generate_data": generate_data.main,
+    "task_report": task_report.main, "evaluate": evaluate.main, "train_all": train_all.main,
+    "cost": cost.main, "benchmark": benchmark.main, "compare": compare.main,
 }
 
 
@@ -696,7 +696,7 @@ def test_invalid_multi_host_settings_are_one_line_errors(monkeypatch, capsys, tm
     monkeypatch.setenv("DMO_NUM_PROCESSES", "two")
     monkeypatch.setenv("DMO_PROCESS_ID", "0")
     with pytest.raises(SystemExit) as exit_info:
-        train_all_main(["--tasks", TASK, "--preset", "tiny", "--workdir", str(tmp_path)])
+        train_all.main(["--tasks", TASK, "--preset", "tiny", "--workdir", str(tmp_path)])
     assert exit_info.value.code == 2
     assert "DMO_NUM_PROCESSES must be a positive integer" in capsys.readouterr().err
 
@@ -745,9 +745,9 @@ def test_a_second_writer_of_a_split_fails_naming_the_first(tmp_path):
 def test_the_missing_dataset_hint_run_as_printed_makes_the_dataset_needed(tmp_path, capsys):
     data = tmp_path / "data" / "32px"
     with pytest.raises(SystemExit):
-        evaluate_main(["--task", TASK, "--method", "sort", "--preset", "tiny", "--data", str(data)])
+        evaluate.main(["--task", TASK, "--method", "sort", "--preset", "tiny", "--data", str(data)])
     hint = capsys.readouterr().err.strip().splitlines()[-1].split("`")[1].split()
     assert hint[0] == "bin/generate_data" and "--image-size" in hint
-    generate_data_main(hint[1:] + ["--train", "3", "--test", "2"])  # the printed command, fewer episodes
+    generate_data.main(hint[1:] + ["--train", "3", "--test", "2"])  # the printed command, fewer episodes
     split = dataset.load_split(data, TASK, "test")
     assert split.meta["image_size"] == TINY.image_size and len(split.motions) == 2

@@ -119,7 +119,9 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     demos = jnp.asarray(demonstrations, jnp.float32)
     start_errors = np.asarray(error(jnp.asarray(starts), demos))
     errors = np.asarray(error(jnp.asarray(candidates), demos))  # [E, K]
-    is_start = np.any(np.all(candidates[:, :, None] == starts[:, None], axis=(3, 4)), axis=2)  # [E, K]
+    rows = lambda m: np.ascontiguousarray(m).reshape(m.shape[:2] + (-1,)).view(  # noqa: E731  (one bytes item per motion)
+        np.dtype((np.void, m.shape[2] * m.shape[3] * m.itemsize)))[..., 0]
+    is_start = np.stack([np.isin(c, s) for c, s in zip(rows(candidates), rows(starts))])  # [E, K]
     depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
     out = {"first_error_m": round(float(np.mean(errors[:, 0])), 4),
            "first_depth_error_m": round(float(np.mean(depth_error)), 4),

@@ -7,10 +7,10 @@ import tempfile
 
 # The commands the tests start (each a new process) share one compilation cache, fresh for
 # every run of the suite: a program is compiled once for all of them, and nothing is left in
-# the user's cache.
-_CACHE = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
-atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
-os.environ.setdefault("DMO_JAX_COMPILATION_CACHE", _CACHE)
+# the user's cache. pytest-xdist's workers inherit the directory from the main process.
+if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
+    os.environ["DMO_JAX_COMPILATION_CACHE"] = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
+    atexit.register(shutil.rmtree, os.environ["DMO_JAX_COMPILATION_CACHE"], ignore_errors=True)
 
 from envs.platform import setup  # noqa: E402
 

@@ -283,7 +283,7 @@ COMMAND_CASES = [
     _case("train_all", TA + ["--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
     _case("train_all", TA + ["--variant", "resnet"], "argument --variant: invalid choice: 'resnet'"),
     _case("train_all", TA + ["--negatives", "none"], "argument --negatives: invalid choice: 'none'"),
-    _case("train_all", TA + ["--dmo-steps", "0"], "--dmo-steps must be at least 1, got 0"),
+    _case("train_all", TA + ["--dmo-train-steps", "0"], "--dmo-train-steps must be at least 1, got 0"),
     _case("train_all", TA + ["--seed", "-2"], "--seed must be an integer in [0, 2147483647], got -2"),
     _case("train_all", TA + ["--seed", "99999999999999999999"], "--seed must be an integer in [0, 2147483647]"),
     _case("train_all", TA + ["--workdir", "{unwritable}", "--data", "{good}"], "--workdir directory"),

@@ -31,14 +31,17 @@ def main(argv: list[str] | None = None) -> None:
                         help="architecture (paper Table 2): concat = the paper's model (default)")
     parser.add_argument("--negatives", default="in-data+vae", choices=NEGATIVE_MODES,
                         help="the EBM's negatives (paper Table 4): in-data+vae (default) or only-vae")
-    parser.add_argument("--dmo-steps", type=int, help="R, DMO iterations unrolled in training (default: preset's)")
+    parser.add_argument("--dmo-train-steps", type=int,
+                        help="R the DMO is trained with: refinements unrolled per training step (Ours-5: 5, Ours-1: "
+                        "1; default the preset's train.dmo_train_iters); bin/evaluate picks that DMO with the same "
+                        "option")
     add_set_argument(parser, "replace a setting of the preset; a run of more steps continues a finished one in "
                      "the same --workdir")
     parser.add_argument("--seed", type=int, default=0, help="training seed: initialisation, batches, draws (default 0)")
     parser.add_argument("--json", help="also write the summary as JSON to this file")
     args = parser.parse_args(argv)
-    if args.dmo_steps is not None and args.dmo_steps < 1:
-        fail(f"--dmo-steps must be at least 1, got {args.dmo_steps}")
+    if args.dmo_train_steps is not None and args.dmo_train_steps < 1:
+        fail(f"--dmo-train-steps must be at least 1, got {args.dmo_train_steps}")
 
     from envs.dataset import DatasetError, split_dir
     from dmo_jax import training, workflow
@@ -68,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
               f"negatives {args.negatives}"
               + (f", {', '.join(args.set)}" if args.set else ""), file=sys.stderr)
         try:
-            summaries[name] = workflow.train_task(name, preset, data, args.workdir, args.negatives, args.dmo_steps,
+            summaries[name] = workflow.train_task(name, preset, data, args.workdir, args.negatives, args.dmo_train_steps,
                                                   args.seed, log=lambda m: print(m, file=sys.stderr))
         except (DatasetError, training.TrainingError, ValueError, RuntimeError, OSError) as err:
             fail(f"{name}: {err}")

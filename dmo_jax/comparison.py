@@ -35,7 +35,8 @@ def row_label(result: dict, settings: dict) -> str:
     trained = settings.get("dmo_train_steps")
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""
     recipe = settings.get("recipe") or "paper"
-    inputs, own = settings.get("dmo_inputs") or "decoded", recipe_settings(recipe, TrainConfig())["dmo_inputs"]
+    own = recipe_settings(recipe, TrainConfig())["dmo_inputs"]
+    inputs = settings.get("dmo_inputs") or own
     label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own else ""
     variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
     label += "" if variant == "concat" else f" ({variant})"

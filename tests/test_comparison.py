@@ -94,6 +94,14 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     mixed.write_text(json.dumps(payload))
     assert list(load_evaluations([mixed])) == ["dmo n=8 R=1", "dmo n=8 R=1 (wo_concat)",
                                                "dmo n=8 R=1 (only-vae negatives)"]
+    # a DMO is named by its inputs only where they are not its recipe's own (bank: offset)
+    from dmo_jax.comparison import row_label
+
+    dmo = {"method": "dmo", "n": 8, "R": 1}
+    assert row_label(dmo, {"recipe": "bank"}) == row_label(dmo, {"recipe": "bank", "dmo_inputs": "offset"}) == \
+        "dmo n=8 R=1 [bank]"
+    assert row_label(dmo, {"recipe": "bank", "dmo_inputs": "decoded"}) == "dmo n=8 R=1 (inputs decoded) [bank]"
+    assert row_label(dmo, {"dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset)"
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

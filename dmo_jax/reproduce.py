@@ -111,12 +111,13 @@ def provenance(preset: Preset, episodes: int, command: Sequence[str]) -> dict:
             "command": " ".join(["bin/reproduce", *command])}
 
 
-def _record(result: dict, run: Run) -> dict:
-    """What a table keeps of one ``evaluate_methods`` result."""
+def _record(result: dict, run: Run, preset: Preset) -> dict:
+    """What a table keeps of one ``evaluate_methods`` result of ``run`` with ``preset``."""
     keep = ("task", "method", "n", "R", "successes", "episodes", "success_rate", "episode_success",
             "first_error_m", "first_depth_error_m", "start_error_m", "predict_seconds", "coarse")
-    return {"run": run.name, **{k: result[k] for k in keep if k in result},
-            "settings": run.row_settings() if run.recipe else {}}
+    settings = {**run.row_settings(), "dmo_inputs": preset.with_recipe(run.recipe).train.dmo_inputs} if run.recipe \
+        else {}
+    return {"run": run.name, **{k: result[k] for k in keep if k in result}, "settings": settings}
 
 
 def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:
@@ -197,8 +198,8 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
                 log(f"[table {table}] {task} {run.name}: training what is missing, then evaluating on "
                     f"{episodes} scenes")
                 t0 = time.perf_counter()
-                records = [_record(r, run) for r in evaluate_run(run, task, preset, episodes, data, workdir,
-                                                                 backend, seed, log)]
+                records = [_record(r, run, preset) for r in evaluate_run(run, task, preset, episodes, data, workdir,
+                                                                         backend, seed, log)]
                 payload = payload or {"provenance": provenance(preset, episodes, command), "results": []}
                 payload["results"] += records
                 write_json(path, payload)  # after every run and task: a kill loses at most one

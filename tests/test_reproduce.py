@@ -63,6 +63,7 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
         records = payload["results"]
         assert {r["task"] for r in records} == set(TASKS)
         assert all(r["episodes"] == 10 and r["successes"] == sum(r["episode_success"]) for r in records)
+        assert all(r["settings"]["recipe"] == "paper" and r["settings"]["dmo_inputs"] == "decoded" for r in records)
         expected = {(1, 1), (8, 1), (16, 1)} if table == "5" else {(8, 1), (8, 5), (8, 10)}  # n = 1000: the bank
         assert {(r["n"], r["R"]) for r in records if r["task"] == TASKS[0]} == expected
         rows = load_evaluations([path])  # bin/compare reads a table file

@@ -223,7 +223,7 @@ def render(path: Path, table: str) -> str:
              for label, values in PAPER[table].items()]
     machine = made["machine"]
     return (f"`{made['command']}`: preset `{made['preset']}`, the first {made['episodes']} test scenes of each "
-            f"task, {made['date']}, {machine['device']} ({machine['cores']} cores), jax "
+            f"task, {made['date']}, {machine['cores']} cores, device {'/'.join(dict.fromkeys(machine['device'].split(': ')))}, jax "
             f"{made['versions'].get('jax', '?')}. Rows \"paper\" are the paper's.\n\n" + success_table(rows))
 
 

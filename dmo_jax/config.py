@@ -140,8 +140,7 @@ class TrainConfig:
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
-        for f in dataclasses.fields(self):  # counts and sizes are positive; the counts of extras may be 0
-            value = getattr(self, f.name)
+            # counts and sizes are positive; the counts of extras may be 0
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup")) else 1
                 if value < low:

@@ -42,8 +42,8 @@ def row_label(result: dict, settings: dict) -> str:
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     label += "" if recipe == "paper" else f" [{recipe}]"
-    overrides = sorted(label for label in map(override_label, settings.get("set") or ())
-                       if not label.startswith("dmo_inputs="))
+    overrides = sorted(item for item in map(override_label, settings.get("set") or ())
+                       if not item.startswith("dmo_inputs="))
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 

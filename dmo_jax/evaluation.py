@@ -87,8 +87,19 @@ def coarse_recall(models, preset: Preset, images: np.ndarray, bank: np.ndarray, 
                          coarse=None)
     seconds = time.perf_counter() - t0
     full = np.concatenate([np.asarray(r.motions) for r in rankings])[:len(images)]
-    same = (full[:, :, None] == starts[:, None]).all(axis=(-1, -2)).any(axis=2)  # [E, n]: kept by the coarse one
+    same = _among(full, starts)  # [E, n]: kept by the coarse one
     return same.mean(axis=1), seconds
+
+
+def _among(motions: np.ndarray, pool: np.ndarray) -> np.ndarray:
+    """bool ``[E, K]``: whether each of ``motions [E, K, 101, 11]`` is, byte for byte, one of its
+    episode's ``pool [E, P, 101, 11]`` (compared as one bytes item per motion: no [E, K, P, ...]
+    array, so K and P may be in the thousands)."""
+    def rows(m):
+        m = np.ascontiguousarray(m)
+        return m.reshape(m.shape[:2] + (-1,)).view(np.dtype((np.void, m.shape[2] * m.shape[3] * m.itemsize)))[..., 0]
+
+    return np.stack([np.isin(m, p) for m, p in zip(rows(motions), rows(pool))])
 
 
 def prediction_key(method: str, n: int, R: int) -> tuple:
@@ -119,9 +130,7 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     demos = jnp.asarray(demonstrations, jnp.float32)
     start_errors = np.asarray(error(jnp.asarray(starts), demos))
     errors = np.asarray(error(jnp.asarray(candidates), demos))  # [E, K]
-    rows = lambda m: np.ascontiguousarray(m).reshape(m.shape[:2] + (-1,)).view(  # noqa: E731  (one bytes item per motion)
-        np.dtype((np.void, m.shape[2] * m.shape[3] * m.itemsize)))[..., 0]
-    is_start = np.stack([np.isin(c, s) for c, s in zip(rows(candidates), rows(starts))])  # [E, K]
+    is_start = _among(candidates, starts)  # [E, K]
     depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
     out = {"first_error_m": round(float(np.mean(errors[:, 0])), 4),
            "first_depth_error_m": round(float(np.mean(depth_error)), 4),

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from .config import CoarseRanking, TrainConfig, override_label, recipe_settings
+from .config import CoarseRanking, HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
 
 # {row label: {task name: per-scene success, int (episodes,)}}, rows in the order first seen.
 Rows = dict[str, dict[str, np.ndarray]]
@@ -24,7 +24,8 @@ def row_label(result: dict, settings: dict) -> str:
     two-stage bank scoring other than the ``cpu`` preset's 4/64, which kept the full scoring's
     top 8 in every test scene of the nine tasks and so shares its row); a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
-    inputs than its recipe's ``(inputs offset)``, another architecture ``(wo_concat)`` or EBM
+    inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
+    recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), another architecture ``(wo_concat)`` or EBM
     negatives ``(only-vae negatives)``, networks of a recipe other than the paper's
     ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
@@ -39,11 +40,14 @@ def row_label(result: dict, settings: dict) -> str:
     inputs = settings.get("dmo_inputs") or own
     label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own else ""
     variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
+    items = [override_label(i) for i in settings.get("set") or ()]
+    cue = settings.get("depth_cue", "depth_cue=true" in items)  # (files older than the field: off unless set)
+    if cue != recipe_head(recipe, HeadConfig(variant=variant)).depth_cue:
+        label += " (depth cue)" if cue else " (no depth cue)"
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     label += "" if recipe == "paper" else f" [{recipe}]"
-    overrides = sorted(item for item in map(override_label, settings.get("set") or ())
-                       if not item.startswith("dmo_inputs="))
+    overrides = sorted(item for item in items if not item.startswith(("dmo_inputs=", "depth_cue=")))
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 

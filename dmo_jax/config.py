@@ -172,7 +172,8 @@ class TrainConfig:
 #:   (``ebm_target_scale``, 1 cm), so it learns to rank the motions that are not the positive by
 #:   how close they lie. The random negatives still teach it the image. The DMO learns from
 #:   ``offset`` inputs (``dmo_inputs``): each training motion moved by a VAE perturbation, without
-#:   the VAE's reconstruction error, which the bank's motions do not have.
+#:   the VAE's reconstruction error, which the bank's motions do not have. Both heads read the
+#:   depth cue (``HeadConfig.depth_cue``) where the variant allows it (concat).
 RECIPES = ("paper", "bank")
 #: The bank recipe's ``ebm_target_scale`` (metres).
 BANK_TARGET_SCALE = 0.01
@@ -187,6 +188,13 @@ def recipe_settings(recipe: str, train: TrainConfig) -> dict:
         return {"ebm_near_negatives": near, "near_pool": max(16, near), "ebm_target_scale": BANK_TARGET_SCALE,
                 "dmo_inputs": "offset"}
     raise ValueError(f"unknown recipe {recipe!r}; valid recipes: {', '.join(RECIPES)}")
+
+
+def recipe_head(recipe: str, head: HeadConfig) -> HeadConfig:
+    """``head`` as ``recipe`` sets it: the depth cue on for the bank recipe's concat variant, off
+    otherwise (the other variants cannot read it)."""
+    cue = recipe == "bank" and head.variant == "concat"
+    return dataclasses.replace(head, depth_cue=cue, depth_cue_range=head.depth_cue_range if cue else 0.0)
 
 
 class CoarseRanking(NamedTuple):
@@ -228,12 +236,14 @@ class Preset:
         return self.head.variant
 
     def with_variant(self, variant: str) -> "Preset":
-        return dataclasses.replace(self, head=dataclasses.replace(self.head, variant=check_variant(variant)))
+        """This preset with another architecture (its recipe's depth cue where the variant reads it)."""
+        head = dataclasses.replace(self.head, variant=check_variant(variant), depth_cue=False, depth_cue_range=0.0)
+        return dataclasses.replace(self, head=recipe_head(self.recipe, head))
 
     def with_recipe(self, recipe: str) -> "Preset":
         """This preset training with ``recipe`` (one of :data:`RECIPES`)."""
         train = dataclasses.replace(self.train, **recipe_settings(recipe, self.train))
-        return dataclasses.replace(self, recipe=recipe, train=train)
+        return dataclasses.replace(self, recipe=recipe, train=train, head=recipe_head(recipe, self.head))
 
     def with_overrides(self, overrides: list[str]) -> "Preset":
         """This preset with settings replaced, each given as ``"section.field=value"``: any

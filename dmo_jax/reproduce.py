@@ -66,6 +66,10 @@ class Run:
     negatives: str = "in-data+vae"
     dmo_train_iters: int | None = None  # R the DMO trains with; None: the preset's
 
+    def networks(self, preset: Preset) -> Preset:
+        """``preset`` as this run trains its networks."""
+        return preset.with_variant(self.variant).with_recipe(self.recipe)
+
     def row_settings(self) -> dict:
         """What ``comparison.row_label`` names this run's rows by."""
         return {"recipe": self.recipe, "variant": self.variant, "negatives": self.negatives,
@@ -115,9 +119,15 @@ def _record(result: dict, run: Run, preset: Preset) -> dict:
     """What a table keeps of one ``evaluate_methods`` result of ``run`` with ``preset``."""
     keep = ("task", "method", "n", "R", "successes", "episodes", "success_rate", "episode_success",
             "first_error_m", "first_depth_error_m", "start_error_m", "predict_seconds", "coarse")
-    settings = {**run.row_settings(), "dmo_inputs": preset.with_recipe(run.recipe).train.dmo_inputs} if run.recipe \
-        else {}
-    return {"run": run.name, **{k: result[k] for k in keep if k in result}, "settings": settings}
+    return {"run": run.name, **{k: result[k] for k in keep if k in result}, "settings": _settings(run, preset)}
+
+
+def _settings(run: Run, preset: Preset) -> dict:
+    """What the rows of ``run`` on ``preset`` are made with (``comparison.row_label`` names them by it)."""
+    if run.recipe is None:
+        return {}
+    networks = run.networks(preset)
+    return {**run.row_settings(), "dmo_inputs": networks.train.dmo_inputs, "depth_cue": networks.head.depth_cue}
 
 
 def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:
@@ -136,8 +146,10 @@ def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:
     return payload
 
 
-def _done(payload: dict | None, run: Run, task: str) -> bool:
-    return payload is not None and any(r["run"] == run.name and r["task"] == task for r in payload["results"])
+def _done(payload: dict | None, run: Run, task: str, preset: Preset) -> bool:
+    """Whether ``payload`` holds ``run``'s rows on ``task`` made with today's settings."""
+    return payload is not None and any(r["run"] == run.name and r["task"] == task
+                                       and r["settings"] == _settings(run, preset) for r in payload["results"])
 
 
 def _ensure_data(task: str, preset: Preset, data, episodes: int, log: Callable[[str], None]) -> None:
@@ -166,7 +178,7 @@ def evaluate_run(run: Run, task: str, preset: Preset, episodes: int, data, workd
     if run.recipe is None:
         return [{"task": task, **evaluation.evaluate_world_method(task, m, episodes, data, backend)}
                 for m in run.methods]
-    networks = preset.with_variant(run.variant).with_recipe(run.recipe)
+    networks = run.networks(preset)
     train_task(task, networks, data, workdir, run.negatives, run.dmo_train_iters, seed, log=log)
     bank = len(load_split(data, task, "train", preset.image_size).motions)
     settings = tuple(dict.fromkeys((min(n, bank), R) for n, R in run.settings))
@@ -192,9 +204,13 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
         payload = load_table(path, preset, episodes)
         for run in table_runs(table, recipe):
             for task in tasks:
-                if _done(payload, run, task):
+                if _done(payload, run, task, preset):
                     log(f"[table {table}] {task} {run.name}: done")
                     continue
+                stale = [r for r in (payload or {}).get("results", ()) if r["run"] == run.name and r["task"] == task]
+                if stale:  # made with settings the preset no longer has: replaced, not mixed in
+                    log(f"[table {table}] {task} {run.name}: replacing {len(stale)} rows made with other settings")
+                    payload["results"] = [r for r in payload["results"] if not any(r is x for x in stale)]
                 log(f"[table {table}] {task} {run.name}: training what is missing, then evaluating on "
                     f"{episodes} scenes")
                 t0 = time.perf_counter()

@@ -6,6 +6,9 @@ Work directory layout (``WORKDIR/<task>/<preset>/``)::
     <variant>/ebm-<negatives>/ checkpoints/, metrics.jsonl   (-near<k>of<pool> with near negatives, -graded<s>cm with graded targets)
     <variant>/dmo-R<r>/        checkpoints/, metrics.jsonl   (-<inputs> unless the paper's)
 
+The EBM's and DMO's names end in ``-cue`` (``-cue<range>cm`` when bounded) when their head reads
+the depth cue.
+
 A model whose checkpoint has reached its step count is loaded, not retrained; an
 interrupted one resumes from its last checkpoint.
 """
@@ -35,19 +38,26 @@ class RunPaths:
         return self.root / "vae"
 
     def ebm(self, preset: Preset, negatives: str) -> Path:
-        """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives and
-        graded targets, if any)."""
+        """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives,
+        graded targets and depth cue, if any)."""
         near, pool = training.near_negatives_meta(preset.train, negatives)
         suffix = f"-near{near}of{pool}" if near else ""
         if preset.train.ebm_target_scale:
             suffix += f"-graded{preset.train.ebm_target_scale * 100:g}cm"
-        return self.root / preset.variant / f"ebm-{negatives}{suffix}"
+        return self.root / preset.variant / f"ebm-{negatives}{suffix}{_cue_suffix(preset)}"
 
     def dmo(self, preset: Preset, train_iters: int) -> Path:
         """The DMO of ``preset``'s variant trained with ``train_iters`` unrolled steps (and its inputs
-        when they are not the paper's)."""
+        when they are not the paper's, and its depth cue, if any)."""
         inputs = preset.train.dmo_inputs
-        return self.root / preset.variant / (f"dmo-R{train_iters}" + ("" if inputs == "decoded" else f"-{inputs}"))
+        return self.root / preset.variant / (f"dmo-R{train_iters}" + ("" if inputs == "decoded" else f"-{inputs}")
+                                             + _cue_suffix(preset))
+
+
+def _cue_suffix(preset: Preset) -> str:
+    """``-cue`` for a head reading the depth cue (``-cue10cm`` bounded to 0.1 m), else nothing."""
+    head = preset.head
+    return f"-cue{head.depth_cue_range * 100:g}cm" if head.depth_cue_range else "-cue" if head.depth_cue else ""
 
 
 #: Held-out episodes evaluated during training (a longer test split is for bin/evaluate).

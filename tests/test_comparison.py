@@ -83,9 +83,9 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     plain = _evaluation(tmp_path / "plain.json", [("sort", "reach_target", scenes)])
     other = tmp_path / "other.json"
     payload = json.loads(_evaluation(other, [("sort", "reach_target", scenes)]).read_text())
-    payload["settings"].update({"recipe": "bank", "set": ["lr=0.001", "depth_cue=true"]})
+    payload["settings"].update({"recipe": "paper", "set": ["lr=0.001", "depth_cue=true"]})
     other.write_text(json.dumps(payload))
-    assert list(load_evaluations([plain, other])) == ["sort n=8", "sort n=8 [bank] {depth_cue=true, lr=0.001}"]
+    assert list(load_evaluations([plain, other])) == ["sort n=8", "sort n=8 (depth cue) {lr=0.001}"]
     # a result's own settings name its row (bin/reproduce's tables hold several networks per file)
     mixed = tmp_path / "mixed.json"
     payload = json.loads(_evaluation(mixed, [("dmo", "reach_target", scenes)] * 3).read_text())
@@ -94,14 +94,20 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     mixed.write_text(json.dumps(payload))
     assert list(load_evaluations([mixed])) == ["dmo n=8 R=1", "dmo n=8 R=1 (wo_concat)",
                                                "dmo n=8 R=1 (only-vae negatives)"]
-    # a DMO is named by its inputs only where they are not its recipe's own (bank: offset)
+    # a DMO is named by its inputs, a head by its depth cue, only where they are not the recipe's
+    # own (bank: offset inputs, the cue with the concat variant; paper: decoded inputs, no cue)
     from dmo_jax.comparison import row_label
 
     dmo = {"method": "dmo", "n": 8, "R": 1}
-    assert row_label(dmo, {"recipe": "bank"}) == row_label(dmo, {"recipe": "bank", "dmo_inputs": "offset"}) == \
-        "dmo n=8 R=1 [bank]"
-    assert row_label(dmo, {"recipe": "bank", "dmo_inputs": "decoded"}) == "dmo n=8 R=1 (inputs decoded) [bank]"
+    bank = {"recipe": "bank", "depth_cue": True}
+    assert row_label(dmo, bank) == row_label(dmo, {**bank, "dmo_inputs": "offset"}) == "dmo n=8 R=1 [bank]"
+    assert row_label(dmo, {**bank, "dmo_inputs": "decoded"}) == "dmo n=8 R=1 (inputs decoded) [bank]"
     assert row_label(dmo, {"dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset)"
+    assert row_label(dmo, {**bank, "depth_cue": False}) == "dmo n=8 R=1 (no depth cue) [bank]"
+    assert row_label(dmo, {**bank, "variant": "gap", "depth_cue": False}) == "dmo n=8 R=1 (gap) [bank]"
+    # files older than the field: the cue was on only where set
+    assert row_label(dmo, {"recipe": "bank"}) == "dmo n=8 R=1 (no depth cue) [bank]"
+    assert row_label(dmo, {"recipe": "bank", "set": ["head.depth_cue=true"]}) == "dmo n=8 R=1 [bank]"
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

@@ -175,7 +175,7 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
         dmo = next(r for r in payload["results"] if r["method"] == "dmo")
         assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
     assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
-    # one VAE; an EBM and a DMO (decoded or offset inputs) per recipe
+    # one VAE; an EBM and a DMO per recipe (the bank's: offset inputs, heads reading the depth cue)
     nets = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert nets == ["dmo-R2", "dmo-R2-offset", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm"]
+    assert nets == ["dmo-R2", "dmo-R2-offset-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-cue"]
     assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()

@@ -38,7 +38,7 @@ def tiny_ebm():
 def test_output_shapes(preset, variant):
     """Abstract evaluation for every preset and variant (nothing big is computed)."""
     ebm, dmo = EBMNet.from_name(preset, variant), DMONet.from_name(preset, variant)
-    s, w = ebm.preset.image_size, ebm.preset.head.width
+    s, w = ebm.preset.image_size, ebm.preset.head.feature_channels
     image = jax.ShapeDtypeStruct((3, s, s, 4), jnp.float32)
     feature = jax.ShapeDtypeStruct((s, s, w), jnp.float32)
     motions = jax.ShapeDtypeStruct((5, NUM_STEPS, POSE_DIM), jnp.float32)
@@ -220,16 +220,25 @@ def test_train_overrides_replace_only_the_named_settings():
     assert (longer.train.dmo_steps, longer.train.uv_weight, longer.train.ebm_vae_negatives) == (2400, 30.0, 0)
     assert longer.train.ebm_steps == cpu.train.ebm_steps and longer.encoder == cpu.encoder
     assert cpu.with_overrides([]) == cpu
-    cue = cpu.with_overrides(["depth_cue=true", "depth_cue_range=0.1"])
+    cue = cpu.with_overrides(["depth_cue_range=0.1"])
     assert (cue.head.depth_cue, cue.head.depth_cue_range, cue.train) == (True, 0.1, cpu.train)
+    assert not cpu.with_overrides(["depth_cue=false"]).head.depth_cue
     # one syntax, SECTION.FIELD=VALUE; the section may be left out, and results name it the same
     assert cpu.with_overrides(["train.dmo_steps=2400", "train.uv_weight=30", "train.ebm_vae_negatives=0"]) == longer
-    assert cpu.with_overrides(["head.depth_cue=true", "head.depth_cue_range=0.1"]) == cue
+    assert cpu.with_overrides(["head.depth_cue_range=0.1"]) == cue
     assert [override_label(i) for i in ("train.lr=0.1", "lr=0.1", "head.depth_cue=true")] == \
         ["lr=0.1", "lr=0.1", "depth_cue=true"]
     for bad in ("head.width=64", "encoder.out_dim=8", "train.depth_cue=true", "nope=1"):
         with pytest.raises(ValueError, match=f"--set '{bad}': expected SECTION.FIELD=VALUE"):
             cpu.with_overrides([bad])
+
+
+def test_the_bank_recipe_reads_the_depth_cue_where_the_variant_can():
+    assert get_preset("cpu").head.depth_cue and get_preset("paper", recipe="bank").head.depth_cue
+    assert not get_preset("cpu", recipe="paper").head.depth_cue and not get_preset("paper").head.depth_cue
+    for variant in ("wo_concat", "gap", "vit"):  # they have no per-pose feature mix to read it
+        assert not get_preset("cpu", variant).head.depth_cue
+        assert get_preset("cpu", variant).with_variant("concat") == get_preset("cpu")
 
 
 def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():

@@ -152,18 +152,6 @@ def _done(payload: dict | None, run: Run, task: str, preset: Preset) -> bool:
                                        and r["settings"] == _settings(run, preset) for r in payload["results"])
 
 
-def _ensure_data(task: str, preset: Preset, data, episodes: int, log: Callable[[str], None]) -> None:
-    """Generate the task's splits that are missing: 1,000 training scenes, and test scenes
-    enough for ``episodes`` (at least 100)."""
-    from envs import dataset
-    from envs.tasks import get_task
-
-    for split, count in (("train", 1000), ("test", max(100, episodes))):
-        if not (dataset.split_dir(data, task, split) / "meta.json").is_file():
-            log(f"[{task}] generating the {split} split ({count} scenes at {preset.image_size}px) in {data}")
-            dataset.generate_split(get_task(task, preset.image_size), split, count, data)
-
-
 def evaluate_run(run: Run, task: str, preset: Preset, episodes: int, data, workdir, backend: str = "auto",
                  seed: int = 0, log: Callable[[str], None] = print) -> list[dict]:
     """Train what ``run`` needs on ``task`` with ``preset``'s settings (skipping what is trained)
@@ -172,9 +160,9 @@ def evaluate_run(run: Run, task: str, preset: Preset, episodes: int, data, workd
     from envs.dataset import load_split
 
     from .evaluation import evaluate_methods
-    from .workflow import train_task
+    from .workflow import TEST_EPISODES, generate_missing_splits, train_task
 
-    _ensure_data(task, preset, data, episodes, log)
+    generate_missing_splits(task, data, preset.image_size, max(TEST_EPISODES, episodes), log)
     if run.recipe is None:
         return [{"task": task, **evaluation.evaluate_world_method(task, m, episodes, data, backend)}
                 for m in run.methods]

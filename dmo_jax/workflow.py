@@ -64,20 +64,36 @@ def _cue_suffix(preset: Preset) -> str:
 HELDOUT_EPISODES = 100
 
 
-def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = True, log=print):
-    """Train and held-out datasets of a task at the preset's image size (generated if missing),
-    each with its motions' nearest training motions (``dmo_jax.neighbours``, computed once and
-    stored in the split), plus the camera ``(K, image_size)`` they were rendered with. The
-    held-out set is the test split's first :data:`HELDOUT_EPISODES`."""
+#: Scenes of a task's training split (the bank) and, at least, of its test split, where generated.
+TRAIN_EPISODES, TEST_EPISODES = 1000, 100
+
+
+def generate_missing_splits(task_name: str, data_root, image_size: int, test_episodes: int = TEST_EPISODES,
+                            log=print) -> None:
+    """Generate the task's splits missing under ``data_root``: :data:`TRAIN_EPISODES` training
+    scenes and ``test_episodes`` test scenes, at ``image_size`` px."""
     from envs import dataset as ds
     from envs.tasks import get_task
 
-    for split, n in (("train", 1000), ("test", 100)):
+    for split, n in (("train", TRAIN_EPISODES), ("test", test_episodes)):
         if not (ds.split_dir(data_root, task_name, split) / "meta.json").is_file():
-            if not generate:
-                raise ds.DatasetError(f"no {split} data for {task_name} in {data_root}")
-            log(f"[{task_name}] generating the {split} split ({n} episodes at {preset.image_size}px) in {data_root}")
-            ds.generate_split(get_task(task_name, preset.image_size), split, n, data_root)
+            log(f"[{task_name}] generating the {split} split ({n} episodes at {image_size}px) in {data_root}")
+            ds.generate_split(get_task(task_name, image_size), split, n, data_root)
+
+
+def load_task_data(task_name: str, data_root, preset: Preset, generate: bool = True, log=print):
+    """Train and held-out datasets of a task at the preset's image size (generated if missing,
+    :func:`generate_missing_splits`), each with its motions' nearest training motions
+    (``dmo_jax.neighbours``, computed once and stored in the split), plus the camera
+    ``(K, image_size)`` they were rendered with. The held-out set is the test split's first
+    :data:`HELDOUT_EPISODES`."""
+    from envs import dataset as ds
+
+    if generate:
+        generate_missing_splits(task_name, data_root, preset.image_size, log=log)
+    for split in ("train", "test"):
+        if not (ds.split_dir(data_root, task_name, split) / "meta.json").is_file():
+            raise ds.DatasetError(f"no {split} data for {task_name} in {data_root}")
     train, test = ds.load_split(data_root, task_name, "train"), ds.load_split(data_root, task_name, "test")
     if train.meta["image_size"] != preset.image_size:
         raise ds.DatasetError(

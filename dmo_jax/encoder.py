@@ -27,7 +27,7 @@ are written so that XLA:CPU runs them well:
 
 ``compute_dtype=bfloat16`` runs the matrix products and convolutions in bf16 (params and
 normalisation statistics stay float32); its accuracy effect is measured in
-``dmo_jax.benchmark``.
+``dmo_jax.benchmarks.encoder``.
 """
 from __future__ import annotations
 

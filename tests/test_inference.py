@@ -224,9 +224,9 @@ def test_the_evaluation_path_gives_the_expert_its_success_rate(tmp_path):
 def test_the_no_reuse_benchmark_computes_what_predict_computes(models, bank):
     """bin/benchmark --only predict compares predict() with a variant that re-encodes the image
     for every evaluation; the comparison is only fair if both return the same motion."""
-    from dmo_jax.benchmark import _predict_without_reuse
+    from dmo_jax.benchmarks.reference import predict_without_reuse
 
     image = _images(1)[0]
     out = predict(models, image, bank, jax.random.key(0), preset=TINY, method="dmo", n=3, R=1)
-    plain = jax.jit(lambda m, i, b: _predict_without_reuse(m, i, b, preset=TINY, n=3, R=1, chunk=4))
+    plain = jax.jit(lambda m, i, b: predict_without_reuse(m, i, b, preset=TINY, n=3, R=1, chunk=4))
     np.testing.assert_allclose(plain(models, image, bank), out.motion, rtol=1e-4, atol=1e-4)

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dmo_jax.benchmark import plain_encoder_forward
+from dmo_jax.benchmarks.reference import plain_encoder_forward
 from dmo_jax.config import PRESETS, VARIANTS, get_preset, override_label
 from dmo_jax.encoder import ConvNeXtUNet
 from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params

@@ -1,4 +1,4 @@
-"""``bin/benchmark``: the speed measurements of BENCHMARKS.md (the measuring is ``dmo_jax.benchmark``'s
+"""``bin/benchmark``: the speed measurements of BENCHMARKS.md (the measuring is ``dmo_jax.benchmarks``'s
 and ``envs.benchmark``'s)."""
 from __future__ import annotations
 
@@ -68,20 +68,20 @@ def _section(section: str, args) -> dict:
     """One section's measurements, plus this process's peak resident memory (``peak_rss_mb``)."""
     import resource
 
-    from dmo_jax import benchmark
+    from dmo_jax.benchmarks import device, encoder, predict, training_step
 
     if section == "encoder":
-        result = benchmark.encoder_benchmark(args.preset or "paper", args.repeats, with_torch=args.torch_reference)
+        result = encoder.encoder_benchmark(args.preset or "paper", args.repeats, with_torch=args.torch_reference)
     elif section == "train-step":
-        result = benchmark.training_step_benchmark(args.preset or "cpu", args.repeats)
+        result = training_step.training_step_benchmark(args.preset or "cpu", args.repeats)
     elif section == "predict":
-        result = benchmark.predict_benchmark(args.preset or "cpu", repeats=args.repeats)
+        result = predict.predict_benchmark(args.preset or "cpu", repeats=args.repeats)
     elif section == "execution":
         from envs.benchmark import benchmark_execution
 
         result = {"rows": benchmark_execution(args.episodes, min(args.repeats, 3))}
     elif section == "device":
-        result = benchmark.device_benchmark(repeats=args.repeats)
+        result = device.device_benchmark(repeats=args.repeats)
     else:
         from envs.benchmark import benchmark_data_generation
 
@@ -110,18 +110,18 @@ def _section_in_subprocess(section: str, args) -> dict:
 
 
 def _format(section: str, result: dict) -> str:
-    from dmo_jax import benchmark
+    from dmo_jax.benchmarks import device, encoder, predict, training_step
 
     if section == "encoder":
-        text = benchmark.format_encoder_benchmark(result)
+        text = encoder.format_encoder_benchmark(result)
     elif section == "train-step":
-        text = benchmark.format_training_step_benchmark(result)
+        text = training_step.format_training_step_benchmark(result)
     elif section == "predict":
-        text = benchmark.format_predict_benchmark(result)
+        text = predict.format_predict_benchmark(result)
     elif section == "execution":
         text = "execution\n" + "\n".join(json.dumps(r) for r in result["rows"])
     elif section == "device":
-        text = benchmark.format_device_benchmark(result)
+        text = device.format_device_benchmark(result)
     else:
         text = (f"data generation: {result['episodes']} episodes of {result['task']} at {result['image_size']}px in "
                 f"{result['seconds']:.1f} s = {result['episodes_per_s']:.2f} episodes/s")

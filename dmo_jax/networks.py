@@ -167,7 +167,7 @@ class MotionTrunk(nn.Module):
         if cfg.variant == "concat":
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
             mix_in = [f, g]
-            if cfg.depth_cue:  # F's last channel is the image's depth (see _encode)
+            if cfg.depth_cue:  # F's last channel is the image's depth (see _ImageMotionModule.encode)
                 f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
                 gap = image_depth - motions[..., POSE_KEYS["z"]]
                 cue = jnp.tanh(gap / cfg.depth_cue_range) if cfg.depth_cue_range else gap * 10.0
@@ -210,27 +210,31 @@ def _check_feature(feature, head: HeadConfig):
         )
 
 
-def _encode(encoder, head: HeadConfig, image, deterministic: bool):
-    feature = encoder(image, deterministic)
-    if head.depth_cue:  # the network image's depth channel, read again by the head at each pose
-        feature = jnp.concatenate([feature, image[..., 3:4].astype(feature.dtype)], axis=-1)
-    return feature
-
-
-class EBM(nn.Module):
-    """Energy-based model E(I, P); lower energy = better motion."""
+class _ImageMotionModule(nn.Module):
+    """What the EBM and the DMO share: the image encoder (F, computed once per image) and the
+    motion trunk that reads F along each motion."""
 
     preset: Preset
 
     def setup(self):
         self.encoder = ConvNeXtUNet(self.preset.encoder)
         self.trunk = MotionTrunk(self.preset.head)
-        w = self.preset.head.width
-        self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
 
     def encode(self, image, deterministic: bool = True):
         """``image [..., H, W, 4] -> F [..., H, W, w]`` (``w + 1`` channels with ``depth_cue``)."""
-        return _encode(self.encoder, self.preset.head, image, deterministic)
+        feature = self.encoder(image, deterministic)
+        if self.preset.head.depth_cue:  # the network image's depth channel, read again by the head at each pose
+            feature = jnp.concatenate([feature, image[..., 3:4].astype(feature.dtype)], axis=-1)
+        return feature
+
+
+class EBM(_ImageMotionModule):
+    """Energy-based model E(I, P); lower energy = better motion."""
+
+    def setup(self):
+        super().setup()
+        w = self.preset.head.width
+        self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
 
     def energy(self, feature, motions, deterministic: bool = True):
         """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
@@ -267,19 +271,12 @@ class DMOHead(nn.Module):
         return jnp.concatenate(parts, axis=-1)
 
 
-class DMO(nn.Module):
+class DMO(_ImageMotionModule):
     """Deep Motion Optimizer: one residual refinement step of candidate motions."""
 
-    preset: Preset
-
     def setup(self):
-        self.encoder = ConvNeXtUNet(self.preset.encoder)
-        self.trunk = MotionTrunk(self.preset.head)
+        super().setup()
         self.head = DMOHead(self.preset.head.width)
-
-    def encode(self, image, deterministic: bool = True):
-        """``image [..., H, W, 4] -> F [..., H, W, w]`` (``w + 1`` channels with ``depth_cue``)."""
-        return _encode(self.encoder, self.preset.head, image, deterministic)
 
     def refine(self, feature, motions, deterministic: bool = True):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> refined motions, same shape."""
@@ -301,28 +298,45 @@ def _rngs(train: bool, rng):
     return {"dropout": rng}
 
 
+class PureNet:
+    """A Flax module behind pure functions, parameters in and arrays out: ``init(rng)``,
+    ``param_shapes()`` and the module's methods through :meth:`_apply`. Subclasses give the
+    ``module`` and the example inputs ``init`` traces it with."""
+
+    @property
+    def module(self) -> nn.Module:
+        raise NotImplementedError
+
+    def _example_inputs(self) -> tuple:
+        raise NotImplementedError
+
+    def init(self, rng) -> Params:
+        """Parameters ``{"params": ...}`` (traced on one example input)."""
+        return self.module.init({"params": rng}, *self._example_inputs())
+
+    def param_shapes(self) -> Params:
+        """Like :meth:`init` but only shapes (``jax.eval_shape``), nothing computed."""
+        return jax.eval_shape(self.init, jax.random.key(0))
+
+    def _apply(self, params, method: str, *args, train: bool, rng):
+        return self.module.apply(params, *args, not train, method=method, rngs=_rngs(train, rng))
+
+
 @dataclasses.dataclass(frozen=True)
-class _Net:
+class _Net(PureNet):
     preset: Preset
 
     @classmethod
     def from_name(cls, preset: str = "cpu", variant: str | None = None):
         return cls(get_preset(preset, variant))
 
-    def init(self, rng) -> Params:
-        """Parameters ``{"params": ...}`` for this preset (one dummy image + one motion)."""
-        s = self.preset.image_size
-        image = jnp.zeros((s, s, 4), jnp.float32)
-        motions = jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32)
-        return self.module.init({"params": rng}, image, motions)
-
-    def param_shapes(self) -> Params:
-        """Like :meth:`init` but only shapes (``jax.eval_shape``), nothing computed."""
-        return jax.eval_shape(self.init, jax.random.key(0))
+    def _example_inputs(self) -> tuple:
+        s = self.preset.image_size  # one image and one motion
+        return jnp.zeros((s, s, 4), jnp.float32), jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32)
 
     def encode(self, params, image, *, train: bool = False, rng=None):
         """``image [..., H, W, 4] float32`` (RGB in [0, 1] + depth) -> ``F [..., H, W, w] float32``."""
-        return self.module.apply(params, image, not train, method="encode", rngs=_rngs(train, rng))
+        return self._apply(params, "encode", image, train=train, rng=rng)
 
 
 class EBMNet(_Net):
@@ -334,7 +348,7 @@ class EBMNet(_Net):
 
     def energy(self, params, feature, motions, *, train: bool = False, rng=None):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better)."""
-        return self.module.apply(params, feature, motions, not train, method="energy", rngs=_rngs(train, rng))
+        return self._apply(params, "energy", feature, motions, train=train, rng=rng)
 
 
 class DMONet(_Net):
@@ -346,7 +360,7 @@ class DMONet(_Net):
 
     def refine(self, params, feature, motions, *, train: bool = False, rng=None):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> refined motions (same shape)."""
-        return self.module.apply(params, feature, motions, not train, method="refine", rngs=_rngs(train, rng))
+        return self._apply(params, "refine", feature, motions, train=train, rng=rng)
 
 
 def count_params(params: Params) -> int:

@@ -26,7 +26,7 @@ from envs.motion import NUM_STEPS, POSE_DIM, POSE_KEYS, describe_array, time_gri
 
 from .config import Preset, VAEConfig, get_preset
 from .encoder import gelu
-from .networks import MLP, MultiHeadAttention, sinusoidal_positions
+from .networks import MLP, MultiHeadAttention, PureNet, sinusoidal_positions
 
 Params = Any
 #: Pose keys the VAE models (time is not encoded; it is the fixed grid on output).
@@ -138,16 +138,8 @@ class MotionVAE(nn.Module):
         return self.decode(z, deterministic), mu, logvar
 
 
-def _rngs(train: bool, rng):
-    if not train:
-        return {}
-    if rng is None:
-        raise ValueError("train=True needs rng (dropout)")
-    return {"dropout": rng}
-
-
 @dataclasses.dataclass(frozen=True)
-class VAENet:
+class VAENet(PureNet):
     """Pure motion VAE: parameters in, arrays out."""
 
     config: VAEConfig
@@ -160,12 +152,8 @@ class VAENet:
     def module(self) -> MotionVAE:
         return MotionVAE(self.config)
 
-    def init(self, rng) -> Params:
-        motions = jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32)
-        return self.module.init({"params": rng}, motions, jax.random.key(0))
-
-    def param_shapes(self) -> Params:
-        return jax.eval_shape(self.init, jax.random.key(0))
+    def _example_inputs(self) -> tuple:
+        return jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32), jax.random.key(0)  # one motion, the noise key
 
     def init_at_mean(self, rng, mean_pose) -> Params:
         """Initial parameters whose decoder outputs ``mean_pose [11]`` (the training motions'
@@ -189,11 +177,11 @@ class VAENet:
 
     def encode(self, params, motions, *, train: bool = False, rng=None):
         """``motions [..., 101, 11]`` -> ``(mu, logvar)`` each ``[..., d]``."""
-        return self.module.apply(params, motions, not train, method="encode", rngs=_rngs(train, rng))
+        return self._apply(params, "encode", motions, train=train, rng=rng)
 
     def decode(self, params, z, *, train: bool = False, rng=None):
         """``z [..., d]`` -> motions ``[..., 101, 11]``."""
-        return self.module.apply(params, z, not train, method="decode", rngs=_rngs(train, rng))
+        return self._apply(params, "decode", z, train=train, rng=rng)
 
     def sample_around(self, params, motions, rng, k_sigma: float, num_samples: int | None = None):
         """Decode ``z = mu + k_sigma * sigma * eps`` of each motion's posterior (deterministic net).

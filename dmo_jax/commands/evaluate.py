@@ -112,6 +112,9 @@ def main(argv: list[str] | None = None) -> None:
     settings = [(args.n, args.R)]
     if sweep:
         settings = [(v, args.R) if sweep[0] == "n" else (args.n, v) for v in sweep[1]]
+    networks = {"variant": preset.variant, "recipe": preset.recipe, "dmo_inputs": preset.train.dmo_inputs,
+                "depth_cue": preset.head.depth_cue, "negatives": args.negatives,
+                "dmo_train_steps": args.dmo_train_steps, "set": args.set}  # what the rows are named by
     by_row = {}  # row label ("dmo n=8 R=1") -> {task: result}, rows in the order they appear
     for name in names:
         try:
@@ -126,9 +129,7 @@ def main(argv: list[str] | None = None) -> None:
         except (DatasetError, training.TrainingError, ValueError) as err:
             fail(str(err))
         for result in found:
-            label = row_label(result, {"dmo_train_steps": args.dmo_train_steps, "recipe": preset.recipe,
-                                       "variant": preset.variant, "negatives": args.negatives,
-                                       "dmo_inputs": preset.train.dmo_inputs, "set": args.set})
+            label = row_label(result, networks)
             by_row.setdefault(label, {})[name] = result
             print(f"{name} {label}: {result['successes']}/{result['episodes']} = {result['success_rate']:.0%} "
                   f"(execution {result['seconds']:.1f} s"
@@ -163,11 +164,7 @@ def main(argv: list[str] | None = None) -> None:
             # totals over every row (one task, method and setting: that row's numbers)
             "task": names[0] if len(names) == 1 else names, "method": method, "episodes": episodes,
             "successes": successes, "success_rate": successes / episodes,
-            "settings": {"method": method, "preset": preset.name, "variant": preset.variant,
-                         "recipe": preset.recipe, "dmo_inputs": preset.train.dmo_inputs,
-                         "depth_cue": preset.head.depth_cue, "negatives": args.negatives,
-                         "dmo_train_steps": args.dmo_train_steps,
+            "settings": {"method": method, "preset": preset.name, **networks,
                          "episodes": args.episodes, "backend": args.backend, "data": data,
-                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "set": args.set,
-                         "coarse": args.coarse},
+                         "workdir": args.workdir, "seed": args.seed, "sweep": args.sweep, "coarse": args.coarse},
             "results": results})

@@ -195,10 +195,10 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
                 if _done(payload, run, task, preset):
                     log(f"[table {table}] {task} {run.name}: done")
                     continue
-                stale = [r for r in (payload or {}).get("results", ()) if r["run"] == run.name and r["task"] == task]
-                if stale:  # made with settings the preset no longer has: replaced, not mixed in
-                    log(f"[table {table}] {task} {run.name}: replacing {len(stale)} rows made with other settings")
-                    payload["results"] = [r for r in payload["results"] if not any(r is x for x in stale)]
+                ours = lambda r: r["run"] == run.name and r["task"] == task  # noqa: E731
+                if payload and any(map(ours, payload["results"])):  # made with settings the preset no longer has
+                    log(f"[table {table}] {task} {run.name}: replacing rows made with other settings")
+                    payload["results"] = [r for r in payload["results"] if not ours(r)]
                 log(f"[table {table}] {task} {run.name}: training what is missing, then evaluating on "
                     f"{episodes} scenes")
                 t0 = time.perf_counter()

@@ -36,6 +36,28 @@ def test_every_table_has_its_runs_and_the_papers_rows():
         reproduce.table_runs("3", "bank")
 
 
+def test_rows_made_with_settings_the_preset_no_longer_has_are_replaced_not_mixed_in(tmp_path, monkeypatch):
+    from dmo_jax.config import get_preset
+
+    cpu = get_preset("cpu")
+    (run,) = reproduce.table_runs("6", "bank")
+    made = lambda successes: {"task": "reach_target", "method": "dmo", "n": 8, "R": 1,  # noqa: E731
+                                   "successes": successes, "episodes": 2, "success_rate": successes / 2,
+                                   "episode_success": [1] * successes + [0] * (2 - successes)}
+    monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: [made(2)])
+    path = tmp_path / "table6.json"
+    old = {**reproduce._record(made(0), run, cpu), "settings": {**reproduce._settings(run, cpu), "depth_cue": False}}
+    path.write_text(json.dumps({"provenance": {"preset": "cpu", "episodes": 2}, "results": [old]}))
+    reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,
+                        log=lambda m: None)
+    (row,) = json.loads(path.read_text())["results"]
+    assert row["successes"] == 2 and row["settings"]["depth_cue"] is True
+    # made with today's settings, it is done: nothing is evaluated again
+    monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: pytest.fail("evaluated a done row"))
+    reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,
+                        log=lambda m: None)
+
+
 def _run(*args):
     return subprocess.run([sys.executable, str(ROOT / "bin/reproduce"), *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=1800)

@@ -95,7 +95,7 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
     # networks with the depth cue are others than those without it: asked for, they are missing, by name
     proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work),
                 "--set", "depth_cue=true", check=False)
-    assert proc.returncode != 0 and "ebm-in-data+vae-cue: train this model first" in proc.stderr
+    assert proc.returncode != 0 and "ebm-in-data+vae-cue/checkpoints: train this model first" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 

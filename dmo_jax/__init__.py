@@ -19,6 +19,8 @@ _EXPORTS = {
     "Models": "inference",
     "Prediction": "inference",
     "Ranking": "inference",
+    "BankCache": "inference",
+    "cache_bank": "inference",
     "OptimizerSettings": "inference",
     "CoarseRanking": "config",
     "METHODS": "inference",

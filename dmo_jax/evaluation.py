@@ -18,7 +18,8 @@ from envs.motion import Z
 
 from .config import Preset
 from .data import network_image
-from .inference import METHODS_USING_R, CoarseRanking, OptimizerSettings, refine, resolve_coarse, top_candidates
+from .inference import (METHODS_USING_R, CoarseRanking, OptimizerSettings, cache_bank, refine, resolve_coarse,
+                        top_candidates)
 
 
 def _padded_batches(images: np.ndarray, batch: int):
@@ -70,8 +71,10 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
 def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: int,
               coarse: CoarseRanking | None | str = "preset") -> list:
     """The bank's top ``n`` for ``images`` in batches of ``batch`` (the last one padded), computed
-    before returning. F is dropped (each refine call recomputes it): kept for every image it would
-    take 64 MB per image at the paper preset."""
+    before returning, with the bank's pose activations computed once for all of them
+    (:func:`~dmo_jax.inference.cache_bank`). F is dropped (each refine call recomputes it): kept
+    for every image it would take 64 MB per image at the paper preset."""
+    bank = cache_bank(models, bank, preset=preset)
     rankings = [top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
                 for _, x in _padded_batches(images, batch)]
     return jax.block_until_ready(rankings)

@@ -39,7 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, matrix_to_rot6d,
+from envs.motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, describe_array,
+                         matrix_to_rot6d,
                          rot6d_to_matrix)
 
 from .checks import check_arrays, check_params, is_concrete, is_integer
@@ -86,6 +87,17 @@ class Ranking(NamedTuple):
     def first(self, n: int) -> "Ranking":
         """The best ``n`` of each image's motions (the same F)."""
         return Ranking(self.motions[..., :n, :, :], self.energies[..., :n], self.feature)
+
+
+class BankCache(NamedTuple):
+    """A bank of ``motions [N, 101, 11]`` with their ``pose`` activations ``[N, 101, P]`` under one
+    EBM (:func:`cache_bank`): the head's work on the poses alone, which does not depend on the
+    image, done once for every image the bank is scored for. Valid only with the EBM parameters
+    it was made with. :func:`predict` and :func:`top_candidates` take it in place of the bank;
+    the energies equal the bank's to float rounding."""
+
+    motions: jax.Array
+    pose: jax.Array
 
 
 class Prediction(NamedTuple):
@@ -147,15 +159,43 @@ def default_chunk() -> int:
     return 32 if jax.default_backend() == "cpu" else 256
 
 
-def chunked_energy(ebm: EBMNet, params, feature, motions, chunk: int) -> jax.Array:
-    """Energies of ``motions [N, 101, 11]`` under one image's ``F``, ``chunk`` at a time."""
+def chunked_energy(ebm: EBMNet, params, feature, motions, chunk: int, pose=None) -> jax.Array:
+    """Energies of ``motions [N, T, 11]`` under one image's ``F``, ``chunk`` at a time (``pose``:
+    their :meth:`~dmo_jax.networks.EBMNet.pose_activations` ``[N, T, P]``, or None)."""
     n = motions.shape[0]
     if n <= chunk:
-        return ebm.energy(params, feature, motions)
-    pad = (-n) % chunk
-    padded = jnp.concatenate([motions, jnp.zeros((pad,) + motions.shape[1:], motions.dtype)])
-    energies = jax.lax.map(lambda m: ebm.energy(params, feature, m), padded.reshape((-1, chunk) + motions.shape[1:]))
+        return ebm.energy(params, feature, motions, pose=pose)
+
+    def chunks(x):
+        padded = jnp.concatenate([x, jnp.zeros(((-n) % chunk,) + x.shape[1:], x.dtype)])
+        return padded.reshape((-1, chunk) + x.shape[1:])
+
+    energies = jax.lax.map(lambda mp: ebm.energy(params, feature, mp[0], pose=mp[1]),
+                           (chunks(motions), None if pose is None else chunks(pose)))
     return energies.reshape(-1)[:n]
+
+
+@functools.partial(jax.jit, static_argnames=("preset", "chunk"))
+def _pose_activations_jit(params, motions, *, preset, chunk):
+    ebm = EBMNet(preset)
+    n = motions.shape[0]
+    if n <= chunk:
+        return ebm.pose_activations(params, motions)
+    padded = jnp.concatenate([motions, jnp.zeros(((-n) % chunk,) + motions.shape[1:], motions.dtype)])
+    pose = jax.lax.map(lambda m: ebm.pose_activations(params, m), padded.reshape((-1, chunk) + motions.shape[1:]))
+    return pose.reshape((-1,) + pose.shape[2:])[:n]
+
+
+def cache_bank(models: Models, bank: jax.Array, *, preset: Preset, chunk: int | None = None) -> BankCache:
+    """The :class:`BankCache` of ``bank [N, 101, 11]`` under ``models.ebm``: compute once, pass to
+    :func:`predict` / :func:`top_candidates` for every image (``bin/evaluate`` does, per task).
+    Raises ``ValueError`` for the arguments :func:`predict` checks."""
+    preset = get_preset(preset) if isinstance(preset, str) else preset
+    blank = np.zeros((preset.image_size,) * 2 + (4,), np.float32) if isinstance(preset, Preset) else None
+    preset, _, bank, _, chunk, _ = _checked_call(models, preset, "sort", blank, bank, None, 1, 0, chunk)
+    if isinstance(bank, BankCache):
+        return bank
+    return BankCache(bank, _pose_activations_jit(models.ebm, jnp.asarray(bank), preset=preset, chunk=chunk))
 
 
 def langevin(energy_fn, x0, key, step: float, iters: int, noise: bool = True):
@@ -184,12 +224,16 @@ def _top_n(preset: Preset, n: int, chunk: int, coarse: CoarseRanking | None, mod
     """The ``n`` lowest-energy motions of ``bank`` for one image (best first), with F."""
     ebm = EBMNet(preset)
     feature = ebm.encode(models.ebm, image)
+    motions, pose = (bank.motions, bank.pose) if isinstance(bank, BankCache) else (bank, None)
     if coarse is not None:
-        rough = chunked_energy(ebm, models.ebm, feature, bank[:, ::coarse.stride], chunk)
-        bank = bank[jax.lax.top_k(-rough, coarse.keep)[1]]
-    bank_energy = chunked_energy(ebm, models.ebm, feature, bank, chunk)
+        every = slice(None, None, coarse.stride)
+        rough = chunked_energy(ebm, models.ebm, feature, motions[:, every], chunk,
+                               None if pose is None else pose[:, every])
+        kept = jax.lax.top_k(-rough, coarse.keep)[1]
+        motions, pose = motions[kept], None if pose is None else pose[kept]
+    bank_energy = chunked_energy(ebm, models.ebm, feature, motions, chunk, pose)
     neg_energy, top = jax.lax.top_k(-bank_energy, n)
-    return Ranking(bank[top], -neg_energy, feature)
+    return Ranking(motions[top], -neg_energy, feature)
 
 
 class _Call(NamedTuple):
@@ -329,7 +373,8 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       image: ``[S, S, 4]`` float32 network image (``dmo_jax.data.network_image``) or a
         batch ``[B, S, S, 4]`` (every output gains a leading B axis; the bank is scored one
         image after another, the candidates are optimised vmapped over the images).
-      bank: ``[N, 101, 11]`` training motions to score.
+      bank: ``[N, 101, 11]`` training motions to score, or their :class:`BankCache`
+        (:func:`cache_bank`; less work per image, the same energies to float rounding).
       key: PRNG key (used by the stochastic methods).
       preset: the networks' :class:`~dmo_jax.config.Preset` (or its name).
       method: one of :data:`METHODS`.
@@ -444,9 +489,17 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
     for name, value in (("n", n), ("R", R), ("chunk", chunk)):
         if not is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
-    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
+    cache = bank if isinstance(bank, BankCache) else None
+    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank if cache is None else cache.motions))
     coarse = resolve_coarse(preset, coarse, n, jnp.shape(bank)[0] if jnp.ndim(bank) else 0)
     check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R, coarse)
+    if cache is not None:
+        width = preset.head.width * (2 if preset.head.variant == "concat" else 1)
+        pose = cache.pose if hasattr(cache.pose, "dtype") else np.asarray(cache.pose)
+        if tuple(jnp.shape(pose)) != tuple(jnp.shape(bank))[:2] + (width,) or not jnp.issubdtype(pose.dtype,
+                                                                                                 jnp.floating):
+            raise ValueError(f"{bank_name}.pose must be floating-point [{len(bank)}, {NUM_STEPS}, {width}] for preset "
+                             f"{preset.name!r} (make it with cache_bank), got {describe_array(pose)}")
     if not isinstance(models, Models):
         raise ValueError(f"models must be dmo_jax.inference.Models(ebm, dmo, vae), got {type(models).__name__}")
     if models.ebm is None:
@@ -462,4 +515,4 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
     check_arrays(image, bank, key, bank_name)
     for net in ("ebm",) + needs:
         check_params(getattr(models, net), preset, net)
-    return preset, image, bank, key, chunk, coarse
+    return preset, image, bank if cache is None else BankCache(bank, pose), key, chunk, coarse

@@ -150,45 +150,107 @@ class TransformerBlock(nn.Module):
 
 
 # --------------------------------------------------------------------------- heads
+class _SplitDense(nn.Module):
+    """``nn.Dense(features)`` on the concatenation of parts of ``widths`` (the same parameters),
+    which can also take one part's product with its rows of the kernel computed beforehand."""
+
+    features: int
+    widths: tuple[int, ...]
+
+    def setup(self):
+        self.kernel = self.param("kernel", nn.initializers.lecun_normal(), (sum(self.widths), self.features))
+        self.bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+
+    def rows(self, i: int):
+        start = sum(self.widths[:i])
+        return self.kernel[start:start + self.widths[i]]
+
+    def __call__(self, parts, known: int | None = None, product=None):
+        """``parts``: arrays ``[..., widths[i]]``; with ``known`` = i, ``product`` = ``parts[i] @ rows(i)``
+        replaces that part (equal to float rounding)."""
+        if known is None:
+            x = jnp.concatenate(parts, -1)
+            return jax.lax.dot_general(x, self.kernel, (((x.ndim - 1,), (0,)), ((), ()))) + self.bias
+        out = product + self.bias
+        for i, x in enumerate(parts):
+            if i != known:
+                out = out + x @ self.rows(i)
+        return out
+
+
+class MixMLP(nn.Module):
+    """The concat variant's feature mix: ``[f_t, g_t(, cue_t)]`` -> 2w -> 2w -> w, GELU after each.
+    The pose part of its first layer, ``g_t W_g``, does not depend on the image: :meth:`pose_part`
+    computes it, once per bank (:meth:`EBM.pose_activations`), and ``__call__`` takes it instead of
+    ``g_t``."""
+
+    width: int
+    depth_cue: bool
+
+    def setup(self):
+        w = self.width
+        # Named as nn.Dense layers of an MLP are, so the parameters keep their layout.
+        self.Dense_0 = _SplitDense(2 * w, (w, w) + ((1,) if self.depth_cue else ()))
+        self.Dense_1 = nn.Dense(2 * w)
+        self.Dense_2 = nn.Dense(w)
+
+    def pose_part(self, g):
+        """``g [..., T, w] -> g W_g [..., T, 2w]``."""
+        return g @ self.Dense_0.rows(1)
+
+    def __call__(self, f, g, cue=None, pose_part=None):
+        """``f [..., T, w]`` sampled features, ``g [..., T, w]`` pose tokens (or None with ``pose_part``),
+        ``cue [..., T, 1]`` (with ``depth_cue``) -> tokens ``[..., T, w]``."""
+        parts = [f, g] + ([cue] if self.depth_cue else [])
+        x = self.Dense_0(parts) if pose_part is None else self.Dense_0(parts, known=1, product=pose_part)
+        return gelu(self.Dense_2(gelu(self.Dense_1(gelu(x)))))
+
+
 class MotionTrunk(nn.Module):
     """Tokens -> Transformer features, per variant.
 
-    ``feature [H, W, w]``, ``motions [n, 101, 11]`` -> ``(all_tokens [n, S, w], pose_tokens [n, 101, w])``.
+    ``feature [H, W, w]``, ``motions [n, T, 11]`` -> ``(all_tokens [n, S, w], pose_tokens [n, T, w])``.
+    ``pose``: the motions' image-independent activations from a call with ``feature=None``, which
+    returns them alone (``concat``: ``g_t W_g [n, T, 2w]``, the pose part of the first mix layer;
+    the other variants: the pose tokens ``g_t [n, T, w]``); None: computed here.
     """
 
     config: HeadConfig
 
     @nn.compact
-    def __call__(self, feature, motions, deterministic: bool = True):
+    def __call__(self, feature, motions, deterministic: bool = True, pose=None):
         cfg = self.config
         w = cfg.width
         n = motions.shape[0]
-        g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(motions, deterministic)
-        if cfg.variant == "concat":
+        concat = cfg.variant == "concat"
+        mix = MixMLP(w, cfg.depth_cue, name="mix_mlp") if concat else None
+        g = None
+        if pose is None:
+            g = MLP((w, 2 * w, 2 * w, w), final_act=False, dropout=cfg.dropout, name="pose_mlp")(motions, deterministic)
+        if feature is None:
+            return mix.pose_part(g) if concat else g
+        if concat:
             f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
-            mix_in = [f, g]
+            cue = None
             if cfg.depth_cue:  # F's last channel is the image's depth (see _ImageMotionModule.encode)
                 f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
                 gap = image_depth - motions[..., POSE_KEYS["z"]]
                 cue = jnp.tanh(gap / cfg.depth_cue_range) if cfg.depth_cue_range else gap * 10.0
-                mix_in = [f, g, cue]
-            tokens = MLP((2 * w, 2 * w, w), final_act=True, name="mix_mlp")(jnp.concatenate(mix_in, -1))
+            tokens = mix(f, g, cue, pose_part=pose)
             image_tokens = 0
-        elif cfg.variant == "wo_concat":
-            tokens = jnp.concatenate([bilinear_sample(feature, motions[..., POSE_KEYS["uv"]]), g], axis=-2)
-            image_tokens = motions.shape[-2]
-        elif cfg.variant == "gap":
-            pooled = jnp.mean(feature, axis=(0, 1))
-            tokens = jnp.concatenate([jnp.broadcast_to(pooled, (n, 1, w)), g], axis=-2)
-            image_tokens = 1
-        elif cfg.variant == "vit":
-            h = feature.shape[0] // cfg.vit_tokens_per_side
-            p = PatchConv(w, h, name="patch")(feature[None])[0].reshape(-1, w)
-            p = p + sinusoidal_positions(p.shape[0], w)
-            tokens = jnp.concatenate([jnp.broadcast_to(p, (n,) + p.shape), g], axis=-2)
-            image_tokens = p.shape[0]
-        else:  # HeadConfig validates the name; this guards future additions
-            raise ValueError(f"unhandled variant {cfg.variant!r}")
+        else:
+            g = g if pose is None else pose
+            if cfg.variant == "wo_concat":
+                image = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
+            elif cfg.variant == "gap":
+                image = jnp.broadcast_to(jnp.mean(feature, axis=(0, 1)), (n, 1, w))
+            elif cfg.variant == "vit":
+                h = feature.shape[0] // cfg.vit_tokens_per_side
+                p = PatchConv(w, h, name="patch")(feature[None])[0].reshape(-1, w)
+                image = jnp.broadcast_to(p + sinusoidal_positions(p.shape[0], w), (n,) + p.shape)
+            else:  # HeadConfig validates the name; this guards future additions
+                raise ValueError(f"unhandled variant {cfg.variant!r}")
+            tokens, image_tokens = jnp.concatenate([image, g], axis=-2), image.shape[-2]
         for i in range(cfg.num_blocks):
             tokens = TransformerBlock(cfg.num_heads, name=f"block{i}")(tokens, deterministic)
         return tokens, tokens[:, image_tokens:]
@@ -236,13 +298,23 @@ class EBM(_ImageMotionModule):
         w = self.preset.head.width
         self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
 
-    def energy(self, feature, motions, deterministic: bool = True):
+    def energy(self, feature, motions, deterministic: bool = True, pose=None):
         """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
-        coarse ranking (``inference``), which scores motions on a subset of their poses."""
+        coarse ranking (``inference``), which scores motions on a subset of their poses.
+        ``pose``: the motions' :meth:`pose_activations` ``[..., T, P]``, computed beforehand."""
         _check_feature(feature, self.preset.head)
         flat, lead = _flatten_motions(motions, any_length=True)
-        tokens, _ = self.trunk(feature, flat, deterministic)
+        if pose is not None:
+            pose = pose.reshape(flat.shape[:2] + pose.shape[-1:])
+        tokens, _ = self.trunk(feature, flat, deterministic, pose)
         return self.energy_mlp(jnp.mean(tokens, axis=-2))[..., 0].reshape(lead)
+
+    def pose_activations(self, motions, deterministic: bool = True):
+        """``motions [..., T, 11]`` -> the head's activations that do not depend on the image,
+        ``[..., T, P]`` (P = 2w for ``concat``, w else; see :class:`MotionTrunk`)."""
+        flat, lead = _flatten_motions(motions, any_length=True)
+        pose = self.trunk(None, flat, deterministic)
+        return pose.reshape(lead + pose.shape[1:])
 
     def __call__(self, image, motions, deterministic: bool = True):
         return self.energy(self.encode(image, deterministic), motions, deterministic)
@@ -346,9 +418,17 @@ class EBMNet(_Net):
     def module(self) -> EBM:
         return EBM(self.preset)
 
-    def energy(self, params, feature, motions, *, train: bool = False, rng=None):
-        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better)."""
-        return self._apply(params, "energy", feature, motions, train=train, rng=rng)
+    def energy(self, params, feature, motions, *, pose=None, train: bool = False, rng=None):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better);
+        ``pose``: the motions' :meth:`pose_activations` (equal energies to float rounding)."""
+        if pose is None:
+            return self._apply(params, "energy", feature, motions, train=train, rng=rng)
+        return self.module.apply(params, feature, motions, not train, pose, method="energy", rngs=_rngs(train, rng))
+
+    def pose_activations(self, params, motions):
+        """``motions [..., T, 11]`` -> ``[..., T, P]``: the head's work on the poses alone, which
+        does not depend on the image; a bank's, computed once, serves every image."""
+        return self.module.apply(params, motions, True, method="pose_activations")
 
 
 class DMONet(_Net):

@@ -188,6 +188,31 @@ def test_the_preset_sets_the_default_bank_scoring_where_it_keeps_more_than_n_and
     assert inference.resolve_coarse(TINY, "preset", 4, 12) is None  # the paper's full scoring
 
 
+@pytest.mark.parametrize("variant,cue", [("concat", False), ("concat", True), ("wo_concat", False), ("vit", False)])
+def test_a_cached_bank_gives_the_same_ranking_and_energies(bank, variant, cue):
+    preset = TINY.with_variant(variant).with_overrides([f"head.depth_cue={str(cue).lower()}"])
+    models = Models(random_params(EBMNet(preset), 0), random_params(DMONet(preset), 1))
+    images, key = _images(2), jax.random.key(0)
+    cache = inference.cache_bank(models, bank, preset=preset)
+    assert cache.pose.shape == (12, 101, 2 * 16 if variant == "concat" else 16)
+    for coarse in (None, inference.CoarseRanking(stride=4, keep=6)):
+        plain = inference.top_candidates(models, images, bank, preset=preset, n=4, coarse=coarse)
+        cached = inference.top_candidates(models, images, cache, preset=preset, n=4, coarse=coarse)
+        np.testing.assert_array_equal(cached.motions, plain.motions)
+        np.testing.assert_allclose(cached.energies, plain.energies, rtol=1e-5, atol=1e-6)
+    # chunked as predict() scores a bank, and inside predict()
+    energies = inference.chunked_energy(EBMNet(preset), models.ebm, plain.feature[0], cache.motions, 5, cache.pose)
+    np.testing.assert_allclose(energies, EBMNet(preset).energy(models.ebm, plain.feature[0], bank), rtol=1e-5,
+                               atol=1e-6)
+    out = predict(models, images, cache, key, preset=preset, method="dmo", n=4, R=1, chunk=5)
+    np.testing.assert_allclose(out.energies, predict(models, images, bank, key, preset=preset, method="dmo", n=4,
+                                                     R=1).energies, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match=r"bank.pose must be floating-point \[12, 101, "):
+        predict(models, images, cache._replace(pose=cache.pose[:, :50]), key, preset=preset)
+    with pytest.raises(ValueError, match="bank must be"):
+        inference.cache_bank(models, bank[:, :50], preset=preset)
+
+
 def test_wrong_image_size_and_empty_bank_fail_clearly(models, bank):
     with pytest.raises(ValueError, match=r"image must be \[32, 32, 4\]"):
         predict(models, jnp.zeros((64, 64, 4)), bank, jax.random.key(0), preset=TINY)

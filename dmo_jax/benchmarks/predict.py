@@ -105,15 +105,21 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
 
 def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> list[dict]:
-    """One image's bank scoring (:func:`~dmo_jax.inference.top_candidates`, top ``n``) in full and
-    in two stages (:class:`~dmo_jax.inference.CoarseRanking`, keeping 64 and 32), timed round-robin, with
-    XLA's FLOP count of each (compiled with the bank in one chunk: XLA counts a loop's body once)."""
-    from dmo_jax.inference import CoarseRanking, _top_candidates_jit, top_candidates
+    """One image's bank scoring (:func:`~dmo_jax.inference.top_candidates`, top ``n``): in full,
+    in two stages (:class:`~dmo_jax.inference.CoarseRanking`, stride 4 and 6 keeping 64), each
+    from the bare bank and from its :class:`~dmo_jax.inference.BankCache`, timed round-robin, with
+    XLA's FLOP count of each (compiled with the bank in one chunk: XLA counts a loop's body once).
+    The cache is made once, outside the timing, as ``bin/evaluate`` makes it once per task."""
+    from dmo_jax.inference import CoarseRanking, _top_candidates_jit, cache_bank, top_candidates
 
-    coarse = (CoarseRanking(), CoarseRanking(keep=32))
-    paths = {"full": None, **{"coarse {}/{}".format(*c): c for c in coarse}}
-    runs = {name: (lambda c=c: top_candidates(models, image, bank, preset=p, n=n, coarse=c).motions)
-            for name, c in paths.items()}
+    cache = jax.block_until_ready(cache_bank(models, bank, preset=p))
+    paths = {}
+    for coarse in (None, CoarseRanking(4, 64), CoarseRanking(6, 64)):
+        name = "full" if coarse is None else "coarse {}/{}".format(*coarse)
+        paths[name] = (coarse, bank)
+        paths[name + ", cached bank"] = (coarse, cache)
+    runs = {name: (lambda c=c, b=b: top_candidates(models, image, b, preset=p, n=n, coarse=c).motions)
+            for name, (c, b) in paths.items()}
     times = {name: [] for name in paths}
     for run in runs.values():
         jax.block_until_ready(run())
@@ -121,10 +127,10 @@ def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> l
         for name, run in runs.items():
             times[name] += time_call(run, repeats=1, warmup=0)
     rows = []
-    for name, c in paths.items():
-        scoring = lambda m, i, b, c=c: _top_candidates_jit(m, i, b, preset=p, n=n, chunk=b.shape[0], coarse=c).energies
+    for name, (c, b) in paths.items():
+        scoring = lambda m, i, b, c=c: _top_candidates_jit(m, i, b, preset=p, n=n, chunk=len(bank), coarse=c).energies
         rows.append({"path": name, "n": n, "median_ms": 1e3 * statistics.median(times[name]),
-                     "gflop": compiled_flops(scoring, models, image, bank) / 1e9})
+                     "gflop": compiled_flops(scoring, models, image, b) / 1e9})
     return rows
 
 

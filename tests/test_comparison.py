@@ -95,13 +95,13 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     assert list(load_evaluations([mixed])) == ["dmo n=8 R=1", "dmo n=8 R=1 (wo_concat)",
                                                "dmo n=8 R=1 (only-vae negatives)"]
     # a DMO is named by its inputs, a head by its depth cue, only where they are not the recipe's
-    # own (bank: offset inputs, the cue with the concat variant; paper: decoded inputs, no cue)
+    # own (both recipes: decoded inputs; bank: the cue with the concat variant)
     from dmo_jax.comparison import row_label
 
     dmo = {"method": "dmo", "n": 8, "R": 1}
     bank = {"recipe": "bank", "depth_cue": True}
-    assert row_label(dmo, bank) == row_label(dmo, {**bank, "dmo_inputs": "offset"}) == "dmo n=8 R=1 [bank]"
-    assert row_label(dmo, {**bank, "dmo_inputs": "decoded"}) == "dmo n=8 R=1 (inputs decoded) [bank]"
+    assert row_label(dmo, bank) == row_label(dmo, {**bank, "dmo_inputs": "decoded"}) == "dmo n=8 R=1 [bank]"
+    assert row_label(dmo, {**bank, "dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset) [bank]"
     assert row_label(dmo, {"dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset)"
     assert row_label(dmo, {**bank, "depth_cue": False}) == "dmo n=8 R=1 (no depth cue) [bank]"
     assert row_label(dmo, {**bank, "variant": "gap", "depth_cue": False}) == "dmo n=8 R=1 (gap) [bank]"

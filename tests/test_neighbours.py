@@ -140,7 +140,7 @@ def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")
     assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale,
-            cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, "offset")
+            cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, "decoded")
     assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
     paper = get_preset("cpu", recipe="paper").train
     assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.dmo_inputs) == (0, 0.0, "decoded")
@@ -175,7 +175,7 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
         dmo = next(r for r in payload["results"] if r["method"] == "dmo")
         assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
     assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
-    # one VAE; an EBM and a DMO per recipe (the bank's: offset inputs, heads reading the depth cue)
+    # one VAE; an EBM and a DMO per recipe (the bank's heads read the depth cue)
     nets = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert nets == ["dmo-R2", "dmo-R2-offset-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-cue"]
+    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-cue"]
     assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()

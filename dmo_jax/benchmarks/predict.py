@@ -93,24 +93,25 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
             rows.append({"method": method, "n": n, "R": 1 if method == "dmo" else None, "reuse": True,
                          "stage": "refine", "median_ms": 1e3 * statistics.median(times[method]),
                          "first_call_s": first[method]})
-    bank_scoring = _bank_scoring_round_robin(models, image, bank, p, method_n, repeats)
+    paths = _paths_round_robin(models, image, bank, key, p, method_n, repeats)
     # predict()'s value checks on the host (inputs: NaN/range of image and bank; result: finite),
     # the only part of a call outside the compiled program
     result = predict(models, image, bank, key, preset=p, method="dmo", n=method_n, R=1)
     checks_ms = 1e3 * statistics.median(time_call(lambda: (check_arrays(image, bank, key), _finite(result)),
                                                   repeats=repeats, warmup=1))
     return {"preset": p.name, "image_size": p.image_size, "bank": bank_size, "rows": rows, "checks_ms": checks_ms,
-            "bank_scoring": bank_scoring,
+            "paths": paths,
             "cpu": cpu_name(), "devices": str(jax.devices()), "loadavg_1min_at_end": os.getloadavg()[0]}
 
 
-def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> list[dict]:
-    """One image's bank scoring (:func:`~dmo_jax.inference.top_candidates`, top ``n``): in full,
-    in two stages (:class:`~dmo_jax.inference.CoarseRanking`, stride 4 and 6 keeping 64), each
-    from the bare bank and from its :class:`~dmo_jax.inference.BankCache`, timed round-robin, with
-    XLA's FLOP count of each (compiled with the bank in one chunk: XLA counts a loop's body once).
-    The cache is made once, outside the timing, as ``bin/evaluate`` makes it once per task."""
-    from dmo_jax.inference import CoarseRanking, _top_candidates_jit, cache_bank, top_candidates
+def _paths_round_robin(models, image, bank, key, p, n: int, repeats: int) -> list[dict]:
+    """One image's ``predict()`` (``dmo``, top ``n``, R = 1) by each path of scoring the bank: in
+    full, in two stages (:class:`~dmo_jax.inference.CoarseRanking`, stride 4 and 6 keeping 64),
+    each from the bare bank and from its :class:`~dmo_jax.inference.BankCache`, timed round-robin
+    (one call of each per round), with XLA's FLOP count of each (compiled with the bank in one
+    chunk: XLA counts a loop's body once). The cache is made once, outside the timing, as
+    ``bin/evaluate`` makes it once per task."""
+    from dmo_jax.inference import CoarseRanking, OptimizerSettings, _predict_jit, cache_bank, predict
 
     cache = jax.block_until_ready(cache_bank(models, bank, preset=p))
     paths = {}
@@ -118,7 +119,7 @@ def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> l
         name = "full" if coarse is None else "coarse {}/{}".format(*coarse)
         paths[name] = (coarse, bank)
         paths[name + ", cached bank"] = (coarse, cache)
-    runs = {name: (lambda c=c, b=b: top_candidates(models, image, b, preset=p, n=n, coarse=c).motions)
+    runs = {name: (lambda c=c, b=b: predict(models, image, b, key, preset=p, method="dmo", n=n, R=1, coarse=c).motion)
             for name, (c, b) in paths.items()}
     times = {name: [] for name in paths}
     for run in runs.values():
@@ -128,9 +129,10 @@ def _bank_scoring_round_robin(models, image, bank, p, n: int, repeats: int) -> l
             times[name] += time_call(run, repeats=1, warmup=0)
     rows = []
     for name, (c, b) in paths.items():
-        scoring = lambda m, i, b, c=c: _top_candidates_jit(m, i, b, preset=p, n=n, chunk=len(bank), coarse=c).energies
+        call = lambda m, i, b, k, c=c: _predict_jit(m, i, b, k, preset=p, method="dmo", n=n, R=1, chunk=len(bank),
+                                                     settings=OptimizerSettings(), coarse=c).energies
         rows.append({"path": name, "n": n, "median_ms": 1e3 * statistics.median(times[name]),
-                     "gflop": compiled_flops(scoring, models, image, b) / 1e9})
+                     "gflop": compiled_flops(call, models, image, b, key) / 1e9})
     return rows
 
 
@@ -144,10 +146,10 @@ def format_predict_benchmark(r: dict) -> str:
                      f"{'yes' if row['reuse'] else 'no'} | {row['median_ms']:.1f} | {row['first_call_s']:.1f} | "
                      f"{row.get('peak_mb') if row.get('peak_mb') is not None else '–'} |")
     ms = {(row["stage"], row["method"], row["n"]): row["median_ms"] for row in r["rows"] if row["reuse"]}
-    if r.get("bank_scoring"):
-        full, *others = r["bank_scoring"]
+    if r.get("paths"):
+        full, *others = r["paths"]
         for row in others:
-            lines.append(f"bank scoring for the top {row['n']}, {row['path']} against full: {row['median_ms']:.0f} "
+            lines.append(f"predict(), dmo n = {row['n']}, {row['path']} against full: {row['median_ms']:.0f} "
                          f"against {full['median_ms']:.0f} ms ({full['median_ms'] / row['median_ms']:.1f}x), "
                          f"{row['gflop']:.1f} against {full['gflop']:.1f} GFLOP")
     if "checks_ms" in r:

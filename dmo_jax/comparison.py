@@ -74,22 +74,27 @@ def load_evaluations(paths) -> Rows:
     """Per-scene successes of every (row, task) in the given ``bin/evaluate --json`` files.
 
     Raises ValueError when a file is missing, is not an evaluation file, or gives a row and
-    task another file already gave (results of different networks must not be mixed silently).
+    task another file already gave with other outcomes (results of different networks must not
+    be mixed silently; the same outcomes, e.g. one EBM's ranking evaluated beside two DMOs, are
+    one row).
     """
     rows: Rows = {}
     source: dict[tuple[str, str], str] = {}
     for path, label, result in _labelled_results(paths):
         task = result["task"]
-        if (label, task) in source:
-            raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}; compare results "
-                             "of different networks in separate calls")
-        source[label, task] = str(path)
         outcomes = result["episode_success"]
         if not (isinstance(outcomes, list) and outcomes and all(o in (0, 1) and not isinstance(o, float)
                                                                 for o in outcomes)):
             raise ValueError(f"{path}: the episode_success of '{label}' on {task} must be a non-empty list of "
                              "0/1 or true/false outcomes, one per scene")
-        rows.setdefault(label, {})[task] = np.asarray(result["episode_success"], dtype=int)
+        outcomes = np.asarray(outcomes, dtype=int)
+        if (label, task) in source:
+            if np.array_equal(rows[label][task], outcomes):
+                continue
+            raise ValueError(f"{path}: '{label}' on {task} is also in {source[label, task]}, with other outcomes; "
+                             "compare results of different networks in separate calls")
+        source[label, task] = str(path)
+        rows.setdefault(label, {})[task] = outcomes
     return rows
 
 

@@ -53,8 +53,11 @@ def test_report_merges_files_and_counts_paired_scenes(tmp_path):
 def test_mixing_two_files_of_the_same_row_and_task_is_refused(tmp_path):
     a = _evaluation(tmp_path / "a.json", [("dmo", "close_box", [1, 0])])
     b = _evaluation(tmp_path / "b.json", [("dmo", "close_box", [0, 1])])
-    with pytest.raises(ValueError, match="'dmo n=8 R=1' on close_box is also in .*a.json"):
+    with pytest.raises(ValueError, match="'dmo n=8 R=1' on close_box is also in .*a.json, with other"):
         load_evaluations([a, b])
+    # the same outcomes (one network evaluated in two runs) are one row
+    again = _evaluation(tmp_path / "again.json", [("dmo", "close_box", [1, 0])])
+    assert {k: v.tolist() for k, v in load_evaluations([a, again])["dmo n=8 R=1"].items()} == {"close_box": [1, 0]}
     (tmp_path / "other.json").write_text(json.dumps({"results": [{"method": "dmo"}]}))
     with pytest.raises(ValueError, match="not a `bin/evaluate --json` file"):
         load_evaluations([tmp_path / "other.json"])

@@ -174,7 +174,7 @@ class TrainConfig:
 #:   how close they lie. The random negatives still teach it the image. Both heads read the
 #:   depth cue (``HeadConfig.depth_cue``) where the variant allows it (concat). The DMO learns
 #:   from the paper's inputs, VAE samples of the ground truth: beside the cue they solved 77.9 %
-#:   of nine tasks against 74.4 % for ``offset`` inputs (``dmo_inputs``), which lead without it.
+#:   of nine tasks against 74.6 % for ``offset`` inputs (``dmo_inputs``), which lead without it.
 RECIPES = ("paper", "bank")
 #: The bank recipe's ``ebm_target_scale`` (metres).
 BANK_TARGET_SCALE = 0.01

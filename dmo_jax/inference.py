@@ -40,8 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs.motion import (GRASP, NUM_STEPS, POSE_DIM, ROT6D, TIME, UV, count_non_finite, describe_array,
-                         matrix_to_rot6d,
-                         rot6d_to_matrix)
+                         matrix_to_rot6d, rot6d_to_matrix)
 
 from .checks import check_arrays, check_params, is_concrete, is_integer
 from .config import CoarseRanking, Preset, get_preset
@@ -159,31 +158,28 @@ def default_chunk() -> int:
     return 32 if jax.default_backend() == "cpu" else 256
 
 
+def _in_chunks(x, chunk: int):
+    """``x [N, ...] -> [ceil(N / chunk), chunk, ...]``, the last chunk padded with zeros."""
+    padded = jnp.concatenate([x, jnp.zeros(((-x.shape[0]) % chunk,) + x.shape[1:], x.dtype)])
+    return padded.reshape((-1, chunk) + x.shape[1:])
+
+
 def chunked_energy(ebm: EBMNet, params, feature, motions, chunk: int, pose=None) -> jax.Array:
     """Energies of ``motions [N, T, 11]`` under one image's ``F``, ``chunk`` at a time (``pose``:
     their :meth:`~dmo_jax.networks.EBMNet.pose_activations` ``[N, T, P]``, or None)."""
     n = motions.shape[0]
     if n <= chunk:
         return ebm.energy(params, feature, motions, pose=pose)
-
-    def chunks(x):
-        padded = jnp.concatenate([x, jnp.zeros(((-n) % chunk,) + x.shape[1:], x.dtype)])
-        return padded.reshape((-1, chunk) + x.shape[1:])
-
     energies = jax.lax.map(lambda mp: ebm.energy(params, feature, mp[0], pose=mp[1]),
-                           (chunks(motions), None if pose is None else chunks(pose)))
+                           (_in_chunks(motions, chunk), None if pose is None else _in_chunks(pose, chunk)))
     return energies.reshape(-1)[:n]
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "chunk"))
 def _pose_activations_jit(params, motions, *, preset, chunk):
     ebm = EBMNet(preset)
-    n = motions.shape[0]
-    if n <= chunk:
-        return ebm.pose_activations(params, motions)
-    padded = jnp.concatenate([motions, jnp.zeros(((-n) % chunk,) + motions.shape[1:], motions.dtype)])
-    pose = jax.lax.map(lambda m: ebm.pose_activations(params, m), padded.reshape((-1, chunk) + motions.shape[1:]))
-    return pose.reshape((-1,) + pose.shape[2:])[:n]
+    pose = jax.lax.map(lambda m: ebm.pose_activations(params, m), _in_chunks(motions, chunk))
+    return pose.reshape((-1,) + pose.shape[2:])[:motions.shape[0]]
 
 
 def cache_bank(models: Models, bank: jax.Array, *, preset: Preset, chunk: int | None = None) -> BankCache:
@@ -490,14 +486,14 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
         if not is_integer(value):
             raise ValueError(f"{name} must be an integer, got {value!r}")
     cache = bank if isinstance(bank, BankCache) else None
-    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank if cache is None else cache.motions))
+    bank = bank if cache is None else cache.motions
+    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
     coarse = resolve_coarse(preset, coarse, n, jnp.shape(bank)[0] if jnp.ndim(bank) else 0)
     check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R, coarse)
     if cache is not None:
-        width = preset.head.width * (2 if preset.head.variant == "concat" else 1)
         pose = cache.pose if hasattr(cache.pose, "dtype") else np.asarray(cache.pose)
-        if tuple(jnp.shape(pose)) != tuple(jnp.shape(bank))[:2] + (width,) or not jnp.issubdtype(pose.dtype,
-                                                                                                 jnp.floating):
+        width = preset.head.width * (2 if preset.head.variant == "concat" else 1)
+        if tuple(jnp.shape(pose)) != (len(bank), NUM_STEPS, width) or not jnp.issubdtype(pose.dtype, jnp.floating):
             raise ValueError(f"{bank_name}.pose must be floating-point [{len(bank)}, {NUM_STEPS}, {width}] for preset "
                              f"{preset.name!r} (make it with cache_bank), got {describe_array(pose)}")
     if not isinstance(models, Models):

@@ -24,7 +24,10 @@ Other variants (tokens into the Transformer): ``wo_concat`` 101 sampled image to
 + 101 pose tokens. The EBM averages all tokens; the DMO reads the 101 pose tokens.
 
 Pure API: :class:`EBMNet` / :class:`DMONet` hold only the configuration; parameters go in
-and arrays come out (``init``, ``encode``, ``energy`` / ``refine``).
+and arrays come out (``init``, ``encode``, ``energy`` / ``refine``). ``EBMNet.pose_activations``
+is the head's work on the poses alone (the pose MLP, and for ``concat`` the pose rows of the
+first mix layer), which does not depend on the image; ``energy(..., pose=...)`` takes it back,
+so a bank's is computed once (``dmo_jax.inference.cache_bank``).
 """
 from __future__ import annotations
 

@@ -301,7 +301,7 @@ class EBM(_ImageMotionModule):
         w = self.preset.head.width
         self.energy_mlp = MLP((w, w, w // 2, w // 2, 1), final_act=False)
 
-    def energy(self, feature, motions, deterministic: bool = True, pose=None):
+    def energy(self, feature, motions, pose=None, deterministic: bool = True):
         """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
         coarse ranking (``inference``), which scores motions on a subset of their poses.
         ``pose``: the motions' :meth:`pose_activations` ``[..., T, P]``, computed beforehand."""
@@ -320,7 +320,7 @@ class EBM(_ImageMotionModule):
         return pose.reshape(lead + pose.shape[1:])
 
     def __call__(self, image, motions, deterministic: bool = True):
-        return self.energy(self.encode(image, deterministic), motions, deterministic)
+        return self.energy(self.encode(image, deterministic), motions, deterministic=deterministic)
 
 
 class DMOHead(nn.Module):
@@ -424,14 +424,12 @@ class EBMNet(_Net):
     def energy(self, params, feature, motions, *, pose=None, train: bool = False, rng=None):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better);
         ``pose``: the motions' :meth:`pose_activations` (equal energies to float rounding)."""
-        if pose is None:
-            return self._apply(params, "energy", feature, motions, train=train, rng=rng)
-        return self.module.apply(params, feature, motions, not train, pose, method="energy", rngs=_rngs(train, rng))
+        return self._apply(params, "energy", feature, motions, pose, train=train, rng=rng)
 
     def pose_activations(self, params, motions):
         """``motions [..., T, 11]`` -> ``[..., T, P]``: the head's work on the poses alone, which
         does not depend on the image; a bank's, computed once, serves every image."""
-        return self.module.apply(params, motions, True, method="pose_activations")
+        return self._apply(params, "pose_activations", motions, train=False, rng=None)
 
 
 class DMONet(_Net):

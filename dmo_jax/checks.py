@@ -27,9 +27,9 @@ def is_integer(value) -> bool:
 
 def check_arrays(image, bank, key, bank_name: str = "bank") -> None:
     """dtype checks (always) and value checks (concrete arrays only) of :func:`predict`'s
-    arrays (``key`` None: not checked); raises ``ValueError`` naming what is wrong and what was
+    arrays (``image`` or ``key`` None: not checked); raises ``ValueError`` naming what is wrong and what was
     expected (the motions as ``bank_name``)."""
-    if not jnp.issubdtype(image.dtype, jnp.floating):
+    if image is not None and not jnp.issubdtype(image.dtype, jnp.floating):
         raise ValueError(f"image must be floating-point (RGB in [0, 1] + depth mapped to [0, 1], see "
                          f"dmo_jax.data.network_image), got {describe_array(image)}")
     if not jnp.issubdtype(bank.dtype, jnp.floating):
@@ -39,7 +39,7 @@ def check_arrays(image, bank, key, bank_name: str = "bank") -> None:
         typed_key = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
         if not ((typed_key and key.shape == ()) or (key.dtype == jnp.uint32 and key.shape == (2,))):
             raise ValueError(f"key must be one PRNG key (jax.random.key(seed)), got {describe_array(key)}")
-    if is_concrete(image):
+    if image is not None and is_concrete(image):
         bad = count_non_finite(image)
         if bad:
             raise ValueError(f"image contains {bad} NaN or inf value(s); expected finite values in [0, 1]")

@@ -35,8 +35,9 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
                      settings: Sequence[tuple[int, int]], seed: int = 0, batch: int = 10,
                      optimizer: OptimizerSettings = OptimizerSettings(), coarse: CoarseRanking | None | str = "preset"):
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` for network
-    ``images [E, S, S, 4]``, scoring the bank once (its top ``max n``; a smaller n takes the
-    first n of them; ``coarse`` as in :func:`~dmo_jax.inference.predict`).
+    ``images [E, S, S, 4]``, scoring the ``bank [N, 101, 11]`` (or its
+    :class:`~dmo_jax.inference.BankCache`) once: its top ``max n``; a smaller n takes the first n
+    of them; ``coarse`` as in :func:`~dmo_jax.inference.predict`.
 
     Returns ``(starts, predictions, seconds)``: the EBM's top ``max n`` bank motions per image
     ``[E, max n, 101, 11]``; per :func:`prediction_key` the ranked ``(candidates [E, K, 101, 11],
@@ -44,7 +45,6 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
     the wall time of the bank scoring (``seconds["bank"]``) and of each prediction.
     """
     e, batch = len(images), min(batch, len(images))
-    bank = jax.numpy.asarray(bank)
     n_max = max(n for n, _ in settings)
     t0 = time.perf_counter()
     rankings = _rankings(models, preset, images, bank, n_max, batch, coarse)
@@ -72,7 +72,7 @@ def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: i
               coarse: CoarseRanking | None | str = "preset") -> list:
     """The bank's top ``n`` for ``images`` in batches of ``batch`` (the last one padded), computed
     before returning, with the bank's pose activations computed once for all of them
-    (:func:`~dmo_jax.inference.cache_bank`). F is dropped (each refine call recomputes it): kept
+    (:func:`~dmo_jax.inference.cache_bank`, unless ``bank`` is one already). F is dropped (each refine call recomputes it): kept
     for every image it would take 64 MB per image at the paper preset."""
     bank = cache_bank(models, bank, preset=preset)
     rankings = [top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
@@ -80,14 +80,14 @@ def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: i
     return jax.block_until_ready(rankings)
 
 
-def coarse_recall(models, preset: Preset, images: np.ndarray, bank: np.ndarray, starts: np.ndarray,
+def coarse_recall(models, preset: Preset, images: np.ndarray, bank, starts: np.ndarray,
                   batch: int = 10) -> tuple[np.ndarray, float]:
-    """How much of the full bank scoring a coarse one kept: per image of ``images [E, S, S, 4]``,
-    the fraction of the full ranking's top n that ``starts [E, n, 101, 11]`` (a coarse ranking's)
-    holds, ``float [E]``; and the full scoring's wall time in seconds."""
+    """How much of the full scoring of ``bank`` (motions or their cache) a coarse one kept: per
+    image of ``images [E, S, S, 4]``, the fraction of the full ranking's top n that ``starts
+    [E, n, 101, 11]`` (a coarse ranking's) holds, ``float [E]``; and the full scoring's wall time
+    in seconds."""
     t0 = time.perf_counter()
-    rankings = _rankings(models, preset, images, jax.numpy.asarray(bank), starts.shape[1], min(batch, len(images)),
-                         coarse=None)
+    rankings = _rankings(models, preset, images, bank, starts.shape[1], min(batch, len(images)), coarse=None)
     seconds = time.perf_counter() - t0
     full = np.concatenate([np.asarray(r.motions) for r in rankings])[:len(images)]
     same = _among(full, starts)  # [E, n]: kept by the coarse one
@@ -184,12 +184,16 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
     episodes = evaluation.episodes_to_run(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
-    starts, predictions, seconds = predict_episodes(models, preset, methods, images, bank, settings, seed,
+    t0 = time.perf_counter()
+    cache = cache_bank(models, bank, preset=preset)  # once for the ranking and the recall's full scoring
+    cache_seconds = time.perf_counter() - t0
+    starts, predictions, seconds = predict_episodes(models, preset, methods, images, cache, settings, seed,
                                                     coarse=coarse)
+    seconds["bank"] += cache_seconds
     coarse = resolve_coarse(preset, coarse, max(n for n, _ in settings), len(bank))
     extra = {"coarse": None if coarse is None else list(coarse)}
     if measure_recall and coarse is not None:
-        recall, full_seconds = coarse_recall(models, preset, images, bank, starts)
+        recall, full_seconds = coarse_recall(models, preset, images, cache, starts)
         extra.update({"coarse_recall": round(float(recall.mean()), 4), "bank_seconds": round(seconds["bank"], 2),
                       "full_bank_seconds": round(full_seconds, 2)})
     intrinsics = np.asarray(test.meta["intrinsics"], np.float32)

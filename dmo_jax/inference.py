@@ -111,15 +111,17 @@ class Prediction(NamedTuple):
 
 def check_request(preset: Preset, method: str, image_shape, bank_shape, n: int, R: int,
                   coarse: CoarseRanking | None = None) -> None:
-    """Static checks of a :func:`predict` call; raises ``ValueError`` naming what is wrong."""
+    """Static checks of a :func:`predict` call (``image_shape`` None: no image); raises ``ValueError``
+    naming what is wrong."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    s = preset.image_size
-    if len(image_shape) not in (3, 4) or tuple(image_shape[-3:]) != (s, s, 4):
-        raise ValueError(f"image must be [{s}, {s}, 4] or [B, {s}, {s}, 4] for preset {preset.name!r}, "
-                         f"got {tuple(image_shape)}")
-    if len(image_shape) == 4 and image_shape[0] < 1:
-        raise ValueError(f"the image batch is empty (shape {tuple(image_shape)}); expected at least one image")
+    if image_shape is not None:
+        s = preset.image_size
+        if len(image_shape) not in (3, 4) or tuple(image_shape[-3:]) != (s, s, 4):
+            raise ValueError(f"image must be [{s}, {s}, 4] or [B, {s}, {s}, 4] for preset {preset.name!r}, "
+                             f"got {tuple(image_shape)}")
+        if len(image_shape) == 4 and image_shape[0] < 1:
+            raise ValueError(f"the image batch is empty (shape {tuple(image_shape)}); expected at least one image")
     if len(bank_shape) != 3 or tuple(bank_shape[1:]) != (NUM_STEPS, POSE_DIM):
         raise ValueError(f"bank must be [N, {NUM_STEPS}, {POSE_DIM}] motions, got {tuple(bank_shape)}")
     if bank_shape[0] < 1:
@@ -186,9 +188,7 @@ def cache_bank(models: Models, bank: jax.Array, *, preset: Preset, chunk: int | 
     """The :class:`BankCache` of ``bank [N, 101, 11]`` under ``models.ebm``: compute once, pass to
     :func:`predict` / :func:`top_candidates` for every image (``bin/evaluate`` does, per task).
     Raises ``ValueError`` for the arguments :func:`predict` checks."""
-    preset = get_preset(preset) if isinstance(preset, str) else preset
-    blank = np.zeros((preset.image_size,) * 2 + (4,), np.float32) if isinstance(preset, Preset) else None
-    preset, _, bank, _, chunk, _ = _checked_call(models, preset, "sort", blank, bank, None, 1, 0, chunk)
+    preset, _, bank, _, chunk, _ = _checked_call(models, preset, "sort", None, bank, None, 1, 0, chunk)
     if isinstance(bank, BankCache):
         return bank
     return BankCache(bank, _pose_activations_jit(models.ebm, jnp.asarray(bank), preset=preset, chunk=chunk))
@@ -474,7 +474,7 @@ def resolve_coarse(preset: Preset, coarse: CoarseRanking | None | str, n: int, b
 
 def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_name="bank", coarse=None):
     """The argument checks shared by :func:`predict`, :func:`top_candidates` and :func:`refine`
-    (``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
+    (``image`` or ``key`` None: not used; ``bank_name``: what the motions are called in errors); returns
     ``(preset, image, bank, key, chunk, coarse)``: arrays, a Preset, the chunk (None: the
     default) and the bank scoring (:func:`resolve_coarse`)."""
     chunk = default_chunk() if chunk is None else chunk
@@ -487,9 +487,9 @@ def _checked_call(models, preset, method, image, bank, key, n, R, chunk, bank_na
             raise ValueError(f"{name} must be an integer, got {value!r}")
     cache = bank if isinstance(bank, BankCache) else None
     bank = bank if cache is None else cache.motions
-    image, bank = (x if hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
+    image, bank = (x if x is None or hasattr(x, "dtype") else np.asarray(x) for x in (image, bank))
     coarse = resolve_coarse(preset, coarse, n, jnp.shape(bank)[0] if jnp.ndim(bank) else 0)
-    check_request(preset, method, jnp.shape(image), jnp.shape(bank), n, R, coarse)
+    check_request(preset, method, None if image is None else jnp.shape(image), jnp.shape(bank), n, R, coarse)
     if cache is not None:
         pose = cache.pose if hasattr(cache.pose, "dtype") else np.asarray(cache.pose)
         width = preset.head.width * (2 if preset.head.variant == "concat" else 1)

@@ -25,7 +25,9 @@ def row_label(result: dict, settings: dict) -> str:
     top 8 in every test scene of the nine tasks and so shares its row); a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
     inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
-    recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), another architecture ``(wo_concat)`` or EBM
+    recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), an EBM trained on its own ranking of
+    the bank where its recipe's is not, or the reverse (``(mined negatives)``, ``(no mined negatives)``),
+    another architecture ``(wo_concat)`` or EBM
     negatives ``(only-vae negatives)``, networks of a recipe other than the paper's
     ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
     if "n" not in result:  # a world method (expert, blind, nearest)
@@ -44,10 +46,15 @@ def row_label(result: dict, settings: dict) -> str:
     cue = settings.get("depth_cue", "depth_cue=true" in items)  # (files older than the field: off unless set)
     if cue != recipe_head(recipe, HeadConfig(variant=variant)).depth_cue:
         label += " (depth cue)" if cue else " (no depth cue)"
+    # (files older than the field: not mined)
+    mined = bool(settings.get("ebm_mined_steps"))
+    if mined != bool(recipe_settings(recipe, TrainConfig())["ebm_mined_steps"]) and negatives == "in-data+vae":
+        label += " (mined negatives)" if mined else " (no mined negatives)"
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     label += "" if recipe == "paper" else f" [{recipe}]"
-    overrides = sorted(item for item in items if not item.startswith(("dmo_inputs=", "depth_cue=")))
+    overrides = sorted(item for item in items
+                       if not item.startswith(("dmo_inputs=", "depth_cue=", "ebm_mined_steps=")))
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 

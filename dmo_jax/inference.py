@@ -215,21 +215,28 @@ def _masked(delta):
 
 
 # --------------------------------------------------------------------------- one image
+def bank_top_n(ebm: EBMNet, params, feature, bank, n: int, chunk: int,
+               coarse: CoarseRanking | None) -> tuple[jax.Array, jax.Array]:
+    """Indices ``int32 [n]`` of the ``n`` lowest-energy motions of ``bank`` (motions or their
+    :class:`BankCache`) under one image's ``feature`` F, best first, and their energies ``[n]``."""
+    motions, pose = (bank.motions, bank.pose) if isinstance(bank, BankCache) else (bank, None)
+    kept = None
+    if coarse is not None:
+        every = slice(None, None, coarse.stride)
+        rough = chunked_energy(ebm, params, feature, motions[:, every], chunk, None if pose is None else pose[:, every])
+        kept = jax.lax.top_k(-rough, coarse.keep)[1]
+        motions, pose = motions[kept], None if pose is None else pose[kept]
+    neg_energy, top = jax.lax.top_k(-chunked_energy(ebm, params, feature, motions, chunk, pose), n)
+    return (top if kept is None else kept[top]), -neg_energy
+
+
 def _top_n(preset: Preset, n: int, chunk: int, coarse: CoarseRanking | None, models: Models, image,
            bank) -> Ranking:
     """The ``n`` lowest-energy motions of ``bank`` for one image (best first), with F."""
     ebm = EBMNet(preset)
     feature = ebm.encode(models.ebm, image)
-    motions, pose = (bank.motions, bank.pose) if isinstance(bank, BankCache) else (bank, None)
-    if coarse is not None:
-        every = slice(None, None, coarse.stride)
-        rough = chunked_energy(ebm, models.ebm, feature, motions[:, every], chunk,
-                               None if pose is None else pose[:, every])
-        kept = jax.lax.top_k(-rough, coarse.keep)[1]
-        motions, pose = motions[kept], None if pose is None else pose[kept]
-    bank_energy = chunked_energy(ebm, models.ebm, feature, motions, chunk, pose)
-    neg_energy, top = jax.lax.top_k(-bank_energy, n)
-    return Ranking(motions[top], -neg_energy, feature)
+    top, energies = bank_top_n(ebm, models.ebm, feature, bank, n, chunk, coarse)
+    return Ranking((bank.motions if isinstance(bank, BankCache) else bank)[top], energies, feature)
 
 
 class _Call(NamedTuple):

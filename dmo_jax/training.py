@@ -168,6 +168,12 @@ def near_negatives_meta(cfg: TrainConfig, negatives: str) -> list[int]:
     return [cfg.ebm_near_negatives, cfg.near_pool] if cfg.ebm_near_negatives and negatives == "in-data+vae" else [0, 0]
 
 
+def mined_steps(cfg: TrainConfig, negatives: str) -> int:
+    """The steps an EBM trains on its own ranking of the bank (``ebm_mined_steps``) after its
+    ``ebm_steps``: 0 without near negatives, which the mined motions replace."""
+    return cfg.ebm_mined_steps if near_negatives_meta(cfg, negatives)[0] else 0
+
+
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
              augment: bool = True, heldout_near: np.ndarray | None = None,
              camera: tuple | None = None) -> ModelSpec:
@@ -206,8 +212,8 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         rivals = None if heldout_near is None else jnp.asarray(heldout_near)
         return evaluate(params, vae_params, jnp.asarray(heldout.images), jnp.asarray(heldout.motions), rivals)
 
-    return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.ebm_steps,
-                     cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
+    return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None,
+                     cfg.ebm_steps + mined_steps(cfg, negatives), cfg.ebm_batch, {"model": "ebm", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
                                      "negatives": negatives, "near_negatives": near_meta,
                                      "target_scale": cfg.ebm_target_scale,

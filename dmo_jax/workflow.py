@@ -39,11 +39,13 @@ class RunPaths:
 
     def ebm(self, preset: Preset, negatives: str) -> Path:
         """The EBM of ``preset``'s variant trained with ``negatives`` (and its near negatives,
-        graded targets and depth cue, if any)."""
+        graded targets, mined steps and depth cue, if any)."""
         near, pool = training.near_negatives_meta(preset.train, negatives)
         suffix = f"-near{near}of{pool}" if near else ""
         if preset.train.ebm_target_scale:
             suffix += f"-graded{preset.train.ebm_target_scale * 100:g}cm"
+        mined = training.mined_steps(preset.train, negatives)
+        suffix += f"-mined{mined}" if mined else ""
         return self.root / preset.variant / f"ebm-{negatives}{suffix}{_cue_suffix(preset)}"
 
     def dmo(self, preset: Preset, train_iters: int) -> Path:
@@ -133,12 +135,41 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed, eval_every=_half(vae_spec))
     rivals = heldout_rivals(train, heldout)
     ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals, camera=camera), task_name)
-    _, summary["ebm"] = training.fit(ebm_spec, train, paths.ebm(preset, negatives), extra=vae_params,
-                                     seed=seed, eval_every=_half(ebm_spec))
+    summary["ebm"] = _train_ebm(preset, ebm_spec, negatives, train, paths.ebm(preset, negatives), vae_params, seed,
+                                log)
     dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=rivals), task_name)
     _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed,
                                      eval_every=_half(dmo_spec))
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
+    return summary
+
+
+def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: MotionDataset, run_dir: Path, vae_params, seed: int,
+               log) -> dict:
+    """Train (or load) the EBM of ``spec`` (made from ``preset``); with mined steps (``training.mined_steps``) in two
+    parts: its ``ebm_steps``, then the rest on its own ranking of the bank (``dmo_jax.mining``),
+    stored in ``run_dir`` so that a resumed run trains on the same table."""
+    from . import mining
+
+    cfg = preset.train
+    mined = training.mined_steps(cfg, negatives)
+    fit = lambda data, **kw: training.fit(spec, data, run_dir, extra=vae_params, seed=seed,  # noqa: E731
+                                          eval_every=_half(spec), **kw)
+    if not mined:
+        return fit(train)[1]
+    params, first = fit(train, stop_after=cfg.ebm_steps)
+    t0 = time.perf_counter()
+    table = mining.stored_rivals(run_dir, train, cfg.near_pool)
+    if table is None:
+        if first["steps"] > cfg.ebm_steps:
+            raise training.TrainingError(
+                f"{run_dir} holds an EBM trained past its {cfg.ebm_steps} steps without the ranking it was mined "
+                f"from ({mining.INDEX_FILE}); retrain it in another --workdir")
+        table = mining.ranked_rivals(params, preset, train, cfg.near_pool, log=log)
+        mining.store_rivals(run_dir, table, train, cfg.ebm_steps)
+    mining_seconds = time.perf_counter() - t0
+    _, summary = fit(dataclasses.replace(train, neighbours=table))
+    summary["seconds"] = round(summary["seconds"] + first["seconds"] + mining_seconds, 2)
     return summary
 
 

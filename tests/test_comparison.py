@@ -97,20 +97,25 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     mixed.write_text(json.dumps(payload))
     assert list(load_evaluations([mixed])) == ["dmo n=8 R=1", "dmo n=8 R=1 (wo_concat)",
                                                "dmo n=8 R=1 (only-vae negatives)"]
-    # a DMO is named by its inputs, a head by its depth cue, only where they are not the recipe's
-    # own (both recipes: decoded inputs; bank: the cue with the concat variant)
+    # a DMO is named by its inputs, a head by its depth cue, an EBM by its mined negatives, only
+    # where they are not the recipe's own (both recipes: decoded inputs; bank: the cue with the
+    # concat variant, and mined negatives)
     from dmo_jax.comparison import row_label
 
     dmo = {"method": "dmo", "n": 8, "R": 1}
-    bank = {"recipe": "bank", "depth_cue": True}
+    bank = {"recipe": "bank", "depth_cue": True, "ebm_mined_steps": 200}
     assert row_label(dmo, bank) == row_label(dmo, {**bank, "dmo_inputs": "decoded"}) == "dmo n=8 R=1 [bank]"
     assert row_label(dmo, {**bank, "dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset) [bank]"
     assert row_label(dmo, {"dmo_inputs": "offset"}) == "dmo n=8 R=1 (inputs offset)"
     assert row_label(dmo, {**bank, "depth_cue": False}) == "dmo n=8 R=1 (no depth cue) [bank]"
     assert row_label(dmo, {**bank, "variant": "gap", "depth_cue": False}) == "dmo n=8 R=1 (gap) [bank]"
-    # files older than the field: the cue was on only where set
-    assert row_label(dmo, {"recipe": "bank"}) == "dmo n=8 R=1 (no depth cue) [bank]"
-    assert row_label(dmo, {"recipe": "bank", "set": ["head.depth_cue=true"]}) == "dmo n=8 R=1 [bank]"
+    assert row_label(dmo, {**bank, "ebm_mined_steps": 0}) == "dmo n=8 R=1 (no mined negatives) [bank]"
+    assert row_label(dmo, {"ebm_mined_steps": 80}) == "dmo n=8 R=1 (mined negatives)"
+    # files older than the fields: the cue was on only where set, and no EBM was mined
+    assert row_label(dmo, {"recipe": "bank", "ebm_mined_steps": 200}) == "dmo n=8 R=1 (no depth cue) [bank]"
+    assert row_label(dmo, {"recipe": "bank", "set": ["head.depth_cue=true"], "ebm_mined_steps": 200}) == \
+        "dmo n=8 R=1 [bank]"
+    assert row_label(dmo, {"recipe": "bank", "depth_cue": True}) == "dmo n=8 R=1 (no mined negatives) [bank]"
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

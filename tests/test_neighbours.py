@@ -1,6 +1,7 @@
 """Bank neighbours and the training recipes built on them: each motion's nearest training motions
-(stored beside the data, rebuilt when it changes), the EBM's near negatives, and both recipes
-from bin/train_all to bin/evaluate on the tiny preset."""
+(stored beside the data, rebuilt when it changes), the EBM's near negatives, the motions the EBM
+itself ranks first (mined negatives), and both recipes from bin/train_all to bin/evaluate on the
+tiny preset."""
 import dataclasses
 import json
 import subprocess
@@ -12,9 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dmo_jax import losses, neighbours, workflow
+from dmo_jax import losses, mining, neighbours, workflow
 from dmo_jax.config import RECIPES, get_preset
 from dmo_jax.data import MotionDataset
+from dmo_jax.networks import EBMNet
 from dmo_jax.vae import VAENet
 from envs import dataset
 from envs.motion import NUM_STEPS, POSE_DIM
@@ -136,14 +138,38 @@ def test_graded_targets_rank_candidates_by_their_distance_from_the_positive():
         get_preset("cpu").with_overrides(["ebm_target_scale=-0.01"])
 
 
+def test_mined_rivals_are_the_ebms_lowest_energy_other_motions_and_are_stored_per_data(tmp_path):
+    preset = get_preset("tiny", recipe="bank")
+    ebm = EBMNet(preset)
+    params = random_params(ebm)
+    rng = np.random.default_rng(1)
+    data = MotionDataset(rng.uniform(0, 1, (6, preset.image_size, preset.image_size, 4)).astype(np.float32),
+                         _motions(6))
+    table = mining.ranked_rivals(params, preset, data, k=3, batch=4, log=lambda m: None)
+    assert table.shape == (6, 3) and table.dtype == np.int32
+    for i, row in enumerate(table):
+        energies = np.asarray(ebm.energy(params, ebm.encode(params, jnp.asarray(data.images[i])),
+                                         jnp.asarray(data.motions)))
+        others = [j for j in np.argsort(energies, kind="stable") if j != i]
+        assert list(row) == others[:3]  # never the image's own motion; lowest energy first
+
+    mining.store_rivals(tmp_path, table, data, step=20)
+    assert np.array_equal(mining.stored_rivals(tmp_path, data, 3), table)
+    assert mining.stored_rivals(tmp_path, data, 4) is None  # another K
+    assert mining.stored_rivals(tmp_path, dataclasses.replace(data, motions=_motions(6, seed=2)), 3) is None
+    with pytest.raises(ValueError, match="k must be in"):
+        mining.ranked_rivals(params, preset, data, k=6)
+
+
 def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")
     assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale,
-            cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, "decoded")
+            cpu.train.ebm_mined_steps, cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, 200, "decoded")
     assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
     paper = get_preset("cpu", recipe="paper").train
-    assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.dmo_inputs) == (0, 0.0, "decoded")
+    assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.ebm_mined_steps, paper.dmo_inputs) == \
+        (0, 0.0, 0, "decoded")
     with pytest.raises(ValueError, match="unknown recipe 'ibc'"):
         get_preset("cpu", recipe="ibc")
     with pytest.raises(ValueError, match="exceeds ebm_gt_negatives"):
@@ -177,5 +203,9 @@ def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
     assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
     # one VAE; an EBM and a DMO per recipe (the bank's heads read the depth cue)
     nets = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-cue"]
+    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-mined8-cue"]
     assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()
+    # the bank EBM trained its last 8 steps on its own ranking of the bank, stored beside it
+    ebm_dir = work / "reach_target" / "tiny" / "concat" / nets[-1]
+    assert np.load(ebm_dir / mining.INDEX_FILE).shape == (20, 16)
+    assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["step"] == 20

@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.progress import Progress
+
 from .config import Preset
 from .data import MotionDataset, motions_fingerprint
 from .inference import Models, bank_top_n, cache_bank, default_chunk, resolve_coarse
@@ -50,9 +52,13 @@ def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, ba
     cache = cache_bank(Models(ebm_params), jnp.asarray(dataset.motions), preset=preset, chunk=chunk)
     coarse = resolve_coarse(preset, "preset", k + 1, n)
     log(f"ranking the bank with the EBM for {n} training images (each image's {k} lowest-energy other motions)")
-    top = np.concatenate([np.asarray(_ranked(ebm_params, jnp.asarray(dataset.images[i:i + batch]), cache,
-                                             preset=preset, k=k + 1, chunk=chunk, coarse=coarse))
-                          for i in range(0, n, batch)])
+    progress, parts = Progress("rank the bank", n), []
+    for i in range(0, n, batch):
+        parts.append(np.asarray(_ranked(ebm_params, jnp.asarray(dataset.images[i:i + batch]), cache, preset=preset,
+                                        k=k + 1, chunk=chunk, coarse=coarse)))
+        progress.update(min(i + batch, n))
+    progress.close()
+    top = np.concatenate(parts)
     own = top == np.arange(n)[:, None]
     # drop each image's own motion where it was ranked, else the (k + 1)-th
     keep = ~own & (own.any(axis=1, keepdims=True) | (np.arange(k + 1) < k))

@@ -170,6 +170,7 @@ def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: 
     mining_seconds = time.perf_counter() - t0
     _, summary = fit(dataclasses.replace(train, neighbours=table))
     summary["seconds"] = round(summary["seconds"] + first["seconds"] + mining_seconds, 2)
+    summary["mining_seconds"] = round(mining_seconds, 2)  # included in seconds
     return summary
 
 

@@ -72,8 +72,9 @@ def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: i
               coarse: CoarseRanking | None | str = "preset") -> list:
     """The bank's top ``n`` for ``images`` in batches of ``batch`` (the last one padded), computed
     before returning, with the bank's pose activations computed once for all of them
-    (:func:`~dmo_jax.inference.cache_bank`, unless ``bank`` is one already). F is dropped (each refine call recomputes it): kept
-    for every image it would take 64 MB per image at the paper preset."""
+    (:func:`~dmo_jax.inference.cache_bank`, unless ``bank`` is one already). F is dropped (each
+    refine call recomputes it): kept for every image it would take 64 MB per image at the paper
+    preset."""
     bank = cache_bank(models, bank, preset=preset)
     rankings = [top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
                 for _, x in _padded_batches(images, batch)]

@@ -144,8 +144,8 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     return summary
 
 
-def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: MotionDataset, run_dir: Path, vae_params, seed: int,
-               log) -> dict:
+def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: MotionDataset, run_dir: Path,
+               vae_params, seed: int, log) -> dict:
     """Train (or load) the EBM of ``spec`` (made from ``preset``); with mined steps (``training.mined_steps``) in two
     parts: its ``ebm_steps``, then the rest on its own ranking of the bank (``dmo_jax.mining``),
     stored in ``run_dir`` so that a resumed run trains on the same table."""

@@ -215,9 +215,8 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
     return ModelSpec("ebm", net.init, loss_fn, eval_fn if heldout is not None else None,
                      cfg.ebm_steps + mined_steps(cfg, negatives), cfg.ebm_batch,
                      {"model": "ebm", "preset": preset.name, "variant": preset.variant, **_head_meta(preset),
-                                     "negatives": negatives, "near_negatives": near_meta,
-                                     "target_scale": cfg.ebm_target_scale,
-                                     "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives]},
+                      "negatives": negatives, "near_negatives": near_meta, "target_scale": cfg.ebm_target_scale,
+                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives]},
                      cfg, near_meta[1])
 
 

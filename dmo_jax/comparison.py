@@ -38,9 +38,9 @@ def row_label(result: dict, settings: dict) -> str:
     trained = settings.get("dmo_train_steps")
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""
     recipe = settings.get("recipe") or "paper"
-    own = recipe_settings(recipe, TrainConfig())["dmo_inputs"]
-    inputs = settings.get("dmo_inputs") or own
-    label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own else ""
+    own = recipe_settings(recipe, TrainConfig())
+    inputs = settings.get("dmo_inputs") or own["dmo_inputs"]
+    label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own["dmo_inputs"] else ""
     variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
     items = [override_label(i) for i in settings.get("set") or ()]
     cue = settings.get("depth_cue", "depth_cue=true" in items)  # (files older than the field: off unless set)
@@ -48,7 +48,7 @@ def row_label(result: dict, settings: dict) -> str:
         label += " (depth cue)" if cue else " (no depth cue)"
     # (files older than the field: not mined)
     mined = bool(settings.get("ebm_mined_steps"))
-    if mined != bool(recipe_settings(recipe, TrainConfig())["ebm_mined_steps"]) and negatives == "in-data+vae":
+    if mined != bool(own["ebm_mined_steps"]) and negatives == "in-data+vae":
         label += " (mined negatives)" if mined else " (no mined negatives)"
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"

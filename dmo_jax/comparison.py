@@ -13,7 +13,12 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from .config import CoarseRanking, HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
+from .config import HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
+
+# Two-stage bank scorings (stride, keep) that chose the same motions, and so solved the same
+# scenes, as the full scoring in all 2,700 test scenes of the nine tasks (BENCHMARKS.md,
+# "Coarse-to-fine bank scoring"): their results share the full scoring's row.
+SAME_AS_FULL = {(4, 64), (6, 64)}
 
 # {row label: {task name: per-scene success, int (episodes,)}}, rows in the order first seen.
 Rows = dict[str, dict[str, np.ndarray]]
@@ -21,8 +26,8 @@ Rows = dict[str, dict[str, np.ndarray]]
 
 def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row (``(coarse 4/32)`` after a
-    two-stage bank scoring other than the ``cpu`` preset's 4/64, which kept the full scoring's
-    top 8 in every test scene of the nine tasks and so shares its row); a DMO trained with a non-default
+    two-stage bank scoring other than those of ``SAME_AS_FULL``, which share the full scoring's
+    row); a DMO trained with a non-default
     number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
     inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
     recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), an EBM trained on its own ranking of
@@ -33,7 +38,7 @@ def row_label(result: dict, settings: dict) -> str:
     if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]
     label = f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
-    if result.get("coarse") and tuple(result["coarse"]) != tuple(CoarseRanking()):
+    if result.get("coarse") and tuple(result["coarse"]) not in SAME_AS_FULL:
         label += " (coarse {}/{})".format(*result["coarse"])
     trained = settings.get("dmo_train_steps")
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""

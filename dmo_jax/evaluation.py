@@ -157,7 +157,7 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
 def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
                      settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int | None = None,
                      backend: str = "auto",
-                     negatives: str = "in-data+vae", dmo_train_iters: int | None = None, seed: int = 0,
+                     negatives: str = "in-data+vae", dmo_train_steps: int | None = None, seed: int = 0,
                      viz_dir=None, coarse: CoarseRanking | None | str = "preset",
                      measure_recall: bool = False) -> list[dict]:
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
@@ -182,7 +182,7 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
                            f"{preset.name!r} needs {preset.image_size}px; use another --data directory")
     train = load_split(data_root, task_name, "train", preset.image_size)
     bank = np.asarray(train.motions, np.float32)
-    models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_iters, bank)
+    models = load_models(workdir, task_name, preset, methods, negatives, dmo_train_steps, bank)
     episodes = evaluation.episodes_to_run(episodes, test, task_name, data_root)
     images = network_image(test.rgb[:episodes], test.depth[:episodes])
     t0 = time.perf_counter()

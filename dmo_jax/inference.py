@@ -388,7 +388,7 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
       coarse: a :class:`~dmo_jax.config.CoarseRanking` scores the bank in two stages (less
         work; it may miss motions the full scoring would keep); None: every motion on all its
         poses; ``"preset"`` (default): the preset's ``coarse`` where it keeps more than n and
-        fewer than N motions (the ``cpu`` preset: stride 4, keep 64), else every motion.
+        fewer than N motions (the ``cpu`` preset: stride 6, keep 64), else every motion.
 
     Returns:
       :class:`Prediction` — best motion, ranked candidates, energies.

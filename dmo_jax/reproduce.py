@@ -64,7 +64,7 @@ class Run:
     settings: tuple[tuple[int, int], ...] = ((8, 1),)
     variant: str = "concat"
     negatives: str = "in-data+vae"
-    dmo_train_iters: int | None = None  # R the DMO trains with; None: the preset's
+    dmo_train_steps: int | None = None  # R the DMO trains with; None: the preset's
 
     def networks(self, preset: Preset) -> Preset:
         """``preset`` as this run trains its networks."""
@@ -73,7 +73,7 @@ class Run:
     def row_settings(self) -> dict:
         """What ``comparison.row_label`` names this run's rows by."""
         return {"recipe": self.recipe, "variant": self.variant, "negatives": self.negatives,
-                "dmo_train_steps": self.dmo_train_iters}
+                "dmo_train_steps": self.dmo_train_steps}
 
 
 def table_runs(table: str, recipe: str) -> list[Run]:
@@ -81,7 +81,7 @@ def table_runs(table: str, recipe: str) -> list[Run]:
     if table == "1":
         runs = [Run("nearest", None, ("nearest",))]
         for r in RECIPES:
-            runs += [Run(r, r, TABLE1_METHODS), Run(f"{r}-dmo-trained-R1", r, dmo_train_iters=1)]
+            runs += [Run(r, r, TABLE1_METHODS), Run(f"{r}-dmo-trained-R1", r, dmo_train_steps=1)]
         return runs
     if table == "2":
         return [Run(f"{recipe}-{v}", recipe, variant=v) for v in VARIANTS]
@@ -170,12 +170,12 @@ def evaluate_run(run: Run, task: str, preset: Preset, episodes: int, data, workd
         return [{"task": task, **evaluation.evaluate_world_method(task, m, episodes, data, backend)}
                 for m in run.methods]
     networks = run.networks(preset)
-    train_task(task, networks, data, workdir, run.negatives, run.dmo_train_iters, seed, log=log)
+    train_task(task, networks, data, workdir, run.negatives, run.dmo_train_steps, seed, log=log)
     bank = len(load_split(data, task, "train", preset.image_size).motions)
     settings = tuple(dict.fromkeys((min(n, bank), R) for n, R in run.settings))
     results = evaluate_methods(task, list(run.methods), preset=networks, workdir=workdir, data_root=data,
                                settings=settings, episodes=episodes, backend=backend, negatives=run.negatives,
-                               dmo_train_iters=run.dmo_train_iters, seed=seed)
+                               dmo_train_steps=run.dmo_train_steps, seed=seed)
     return [{**r, "task": task} for r in results]
 
 

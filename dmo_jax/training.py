@@ -224,7 +224,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
 HELDOUT_NEAR_STARTS = 8
 
 
-def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionDataset | None = None,
+def dmo_spec(preset: Preset, train_steps: int | None = None, heldout: MotionDataset | None = None,
              heldout_camera: tuple | None = None, augment: bool = True,
              heldout_near: np.ndarray | None = None) -> ModelSpec:
     """``extra`` = the trained VAE's parameters (they make the perturbed inputs). The held-out
@@ -232,7 +232,7 @@ def dmo_spec(preset: Preset, train_iters: int | None = None, heldout: MotionData
     ``heldout_near [N, >= 8, 101, 11]`` (each held-out motion's nearest training motions), on
     its 8 nearest bank motions, what prediction feeds it (``near_position_before`` / ``_after``)."""
     net, vae, cfg = DMONet(preset), VAENet.from_preset(preset), preset.train
-    r = cfg.dmo_train_iters if train_iters is None else train_iters
+    r = cfg.dmo_train_steps if train_steps is None else train_steps
     if r < 1:
         raise ValueError(f"the DMO needs at least one training iteration, got {r}")
 

@@ -48,11 +48,11 @@ class RunPaths:
         suffix += f"-mined{mined}" if mined else ""
         return self.root / preset.variant / f"ebm-{negatives}{suffix}{_cue_suffix(preset)}"
 
-    def dmo(self, preset: Preset, train_iters: int) -> Path:
-        """The DMO of ``preset``'s variant trained with ``train_iters`` unrolled steps (and its inputs
+    def dmo(self, preset: Preset, train_steps: int) -> Path:
+        """The DMO of ``preset``'s variant trained with ``train_steps`` unrolled steps (and its inputs
         when they are not the paper's, and its depth cue, if any)."""
         inputs = preset.train.dmo_inputs
-        return self.root / preset.variant / (f"dmo-R{train_iters}" + ("" if inputs == "decoded" else f"-{inputs}")
+        return self.root / preset.variant / (f"dmo-R{train_steps}" + ("" if inputs == "decoded" else f"-{inputs}")
                                              + _cue_suffix(preset))
 
 
@@ -124,11 +124,11 @@ def _half(spec: training.ModelSpec) -> int:
 
 
 def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: str = "in-data+vae",
-               dmo_train_iters: int | None = None, seed: int = 0, log=print) -> dict:
+               dmo_train_steps: int | None = None, seed: int = 0, log=print) -> dict:
     """Train (or load) the VAE, EBM and DMO of one task; returns a summary per model."""
     train, heldout, camera = load_task_data(task_name, data_root, preset, log=log)
     paths = RunPaths.of(workdir, task_name, preset)
-    r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
+    r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
     summary = {}
     t0 = time.perf_counter()
     vae_spec = _of_task(training.vae_spec(preset, heldout, mean_pose=train.motions.mean(axis=(0, 1))), task_name)
@@ -180,7 +180,7 @@ def _of_task(spec: training.ModelSpec, task_name: str) -> training.ModelSpec:
 
 
 def load_models(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
-                dmo_train_iters: int | None = None, bank: np.ndarray | None = None):
+                dmo_train_steps: int | None = None, bank: np.ndarray | None = None):
     """The trained networks ``method`` (a method name or a list of them) needs
     (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
     ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
@@ -200,7 +200,7 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     dmo = vae = None
     needs = {net for m in methods for net in METHOD_REGISTRY[m].needs}
     if "dmo" in needs:
-        r = preset.train.dmo_train_iters if dmo_train_iters is None else dmo_train_iters
+        r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
         dmo = load(paths.dmo(preset, r), training.dmo_spec(preset, r))
     if "vae" in needs:
         vae = load(paths.vae(), training.vae_spec(preset))

@@ -116,6 +116,10 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     assert row_label(dmo, {"recipe": "bank", "set": ["head.depth_cue=true"], "ebm_mined_steps": 200}) == \
         "dmo n=8 R=1 [bank]"
     assert row_label(dmo, {"recipe": "bank", "depth_cue": True}) == "dmo n=8 R=1 (no mined negatives) [bank]"
+    # two-stage scorings measured to choose what the full one chooses share its row; others do not
+    assert row_label({**dmo, "coarse": [6, 64]}, bank) == row_label({**dmo, "coarse": [4, 64]}, bank) == \
+        row_label({**dmo, "coarse": None}, bank) == "dmo n=8 R=1 [bank]"
+    assert row_label({**dmo, "coarse": [8, 64]}, bank) == "dmo n=8 R=1 (coarse 8/64) [bank]"
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

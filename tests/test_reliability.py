@@ -234,7 +234,7 @@ COMMAND_CASES = [
     _case("evaluate", EV + ["--dmo-train-steps", "0"], "--dmo-train-steps must be a positive integer"),
     _case("evaluate", EV + ["--sweep", "k=1,2"], "--sweep must look like n=1,8,1000"),
     _case("evaluate", EV + ["--sweep", "n=0,8"], "values must be >= 1"),
-    _case("evaluate", EV + ["--coarse", "4"], "--coarse must be STRIDE,KEEP (e.g. 4,64) or full, got '4'"),
+    _case("evaluate", EV + ["--coarse", "4"], "--coarse must be STRIDE,KEEP (e.g. 6,64) or full, got '4'"),
     _case("evaluate", EV + ["--coarse", "0,64"], "--coarse 0,64: STRIDE and KEEP must be positive"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--coarse", "4,64"], "--coarse needs a learned method"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--sweep", "n=1"], "--sweep needs learned methods only, not expert"),

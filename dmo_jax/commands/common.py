@@ -34,7 +34,7 @@ def add_recipe_argument(parser, purpose: str = "what the networks train on") -> 
 
 
 def parse_coarse(text: str | None):
-    """``"4,64"`` -> ``CoarseRanking(stride=4, keep=64)``; ``"full"`` -> None; None -> ``"preset"``."""
+    """``"6,64"`` -> ``CoarseRanking(stride=6, keep=64)``; ``"full"`` -> None; None -> ``"preset"``."""
     from dmo_jax.config import CoarseRanking
 
     if text is None:
@@ -44,7 +44,7 @@ def parse_coarse(text: str | None):
     try:
         stride, keep = (int(v) for v in text.split(","))
     except ValueError:
-        raise ValueError(f"--coarse must be STRIDE,KEEP (e.g. 4,64) or full, got {text!r}") from None
+        raise ValueError(f"--coarse must be STRIDE,KEEP (e.g. 6,64) or full, got {text!r}") from None
     if stride < 1 or keep < 1:
         raise ValueError(f"--coarse {text}: STRIDE and KEEP must be positive")
     return CoarseRanking(stride, keep)

@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sweep", help="n=1,8,1000 or R=1,5,10: one row per value (paper Tables 5 and 6)")
     parser.add_argument("--coarse", metavar="STRIDE,KEEP|full",
                         help="how the bank is scored: in two stages (dmo_jax.config.CoarseRanking), every motion on "
-                        "every STRIDE-th pose, then the KEEP best on all poses, e.g. 4,64; or full, every motion on "
-                        "all poses (default: the preset's, cpu 4,64 and paper full)")
+                        "every STRIDE-th pose, then the KEEP best on all poses, e.g. 6,64; or full, every motion on "
+                        "all poses (default: the preset's, cpu 6,64 and paper full)")
     parser.add_argument("--coarse-recall", action="store_true",
                         help="also score the bank in full, untimed, and report how many of its top n the coarse "
                         "scoring kept (coarse_recall)")
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
                 found += evaluate_methods(
                     name, learned, preset=preset, workdir=args.workdir, data_root=data, settings=settings,
                     episodes=args.episodes, backend=args.backend, negatives=args.negatives,
-                    dmo_train_iters=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse,
+                    dmo_train_steps=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse,
                     measure_recall=args.coarse_recall)
         except (DatasetError, training.TrainingError, ValueError) as err:
             fail(str(err))

@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="the EBM's negatives (paper Table 4): in-data+vae (default) or only-vae")
     parser.add_argument("--dmo-train-steps", type=int,
                         help="R the DMO is trained with: refinements unrolled per training step (Ours-5: 5, Ours-1: "
-                        "1; default the preset's train.dmo_train_iters); bin/evaluate picks that DMO with the same "
+                        "1; default the preset's train.dmo_train_steps); bin/evaluate picks that DMO with the same "
                         "option")
     add_set_argument(parser, "replace a setting of the preset; a run of more steps continues a finished one in "
                      "the same --workdir")

@@ -5,13 +5,16 @@ import os
 import shutil
 import tempfile
 
-# The commands the tests start (each a new process) share one compilation cache, fresh for
-# every run of the suite: a program is compiled once for all of them, and nothing is left in
-# the user's cache. pytest-xdist's workers inherit the directory from the main process.
+# The test processes and the commands they start share one compilation cache, fresh for every
+# run of the suite: a program is compiled once for all of them, and nothing is left in the
+# user's cache. pytest-xdist's workers inherit the directory from the main process.
 if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
     os.environ["DMO_JAX_COMPILATION_CACHE"] = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
     atexit.register(shutil.rmtree, os.environ["DMO_JAX_COMPILATION_CACHE"], ignore_errors=True)
 
-from envs.platform import setup  # noqa: E402
+from envs.platform import enable_compilation_cache, setup  # noqa: E402
 
 setup()
+# The tests' own processes read and write the same cache: most tests build the same tiny networks
+# and training steps as other tests, which then load them instead of compiling them again.
+enable_compilation_cache()

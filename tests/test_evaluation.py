@@ -25,19 +25,30 @@ def _run(*args, check=True):
     return proc
 
 
+# The module's tests share one trained work directory: bin/test keeps them on one worker.
+pytestmark = pytest.mark.xdist_group("trained")
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """Tiny datasets (16 train, 4 test episodes) and a tiny VAE + EBM + DMO trained on them."""
+    """Tiny datasets (20 train, 4 test episodes) and a tiny VAE + EBM + DMO of the paper's recipe
+    trained on them, with the training summary."""
     data, work = tmp_path_factory.mktemp("data"), tmp_path_factory.mktemp("runs")
     task = get_task(TASK, TINY.image_size)
-    dataset.generate_split(task, "train", 16, data, batch=16, verbose=False)
+    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
     dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
-    workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
-    return data, work
+    summary = workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
+    return data, work, summary
+
+
+def _check_summary(summary):
+    assert 0.0 <= summary["ebm"]["heldout_near_top1"] <= 1.0
+    assert summary["dmo"]["heldout_near_position_before"] > 0 and summary["dmo"]["heldout_near_position_after"] > 0
 
 
 def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
-    data, work = trained
+    data, work, summary = trained
+    _check_summary(summary)
     out = tmp_path / "r.json"
     proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(work), "--episodes", "4", "--n", "2", "--sweep", "R=0,2", "--backend", "mujoco",
@@ -52,6 +63,7 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
         ("dmo", TASK, 2, 0, 4), ("sort", TASK, 2, None, 4), ("dmo", TASK, 2, 2, 4)]
     # with R = 0 the DMO returns the EBM's ranking, as sort does
     assert payload["results"][0]["episode_success"] == payload["results"][1]["episode_success"]
+    assert payload["results"][2]["mean_start_error_m"] > 0 and payload["results"][2]["mean_optimised_error_m"] > 0
     for r in payload["results"]:
         assert r["successes"] == sum(r["episode_success"]) and r["success_rate"] == r["successes"] / 4
         assert all(0 <= c < 2 for c in r["candidate_used"])
@@ -69,7 +81,7 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
 def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
     from dmo_jax import training
 
-    data, work = trained
+    data, work, _ = trained
     proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work))
     result = json.loads(proc.stdout[: proc.stdout.rindex("}") + 1])
     metrics = workflow.RunPaths.of(work, TASK, TINY).ebm(TINY, "in-data+vae") / "metrics.jsonl"
@@ -102,7 +114,7 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
 def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path):
     from dmo_jax.evaluation import evaluate_method
 
-    data, work = trained
+    data, work, _ = trained
     methods = ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"]
     out = tmp_path / "all.json"
     proc = _run("bin/evaluate", "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data",
@@ -133,7 +145,7 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
 
 
 def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
-    data, _ = trained
+    data, _, _ = trained
     proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(tmp_path), check=False)
     assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
@@ -154,3 +166,28 @@ def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down
     demo, raised = vec(path), vec(path + np.array([0, 0, 0.01]))
     out = motion_diagnostics(demo[None, None], np.stack([raised, demo])[None], demo[None], K, 64, (cam_pos, cam_rot))
     assert out["first_lowest_offset_m"] == pytest.approx(0.01, abs=1e-4)
+
+
+def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
+    from dmo_jax import mining, neighbours
+
+    data, work, _ = trained  # beside the paper's recipe, trained there
+    summary = workflow.train_task(TASK, get_preset("tiny", recipe="bank"), data, work, log=lambda m: None)
+    _check_summary(summary)
+    out = tmp_path / "bank.json"
+    proc = _run("bin/evaluate", "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
+                "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend", "mujoco",
+                "--json", str(out))
+    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]
+    payload = json.loads(out.read_text())
+    assert payload["settings"]["recipe"] == "bank"
+    dmo = next(r for r in payload["results"] if r["method"] == "dmo")
+    assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
+    # one VAE; an EBM and a DMO per recipe (the bank's heads read the depth cue)
+    nets = sorted(p.name for p in (work / TASK / "tiny" / "concat").iterdir())
+    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-mined8-cue"]
+    assert (data / TASK / "train" / neighbours.INDEX_FILE).is_file()
+    # the bank EBM trained its last 8 steps on its own ranking of the bank, stored beside it
+    ebm_dir = work / TASK / "tiny" / "concat" / nets[-1]
+    assert np.load(ebm_dir / mining.INDEX_FILE).shape == (20, 16)
+    assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["step"] == 20

@@ -1,30 +1,23 @@
 """Bank neighbours and the training recipes built on them: each motion's nearest training motions
-(stored beside the data, rebuilt when it changes), the EBM's near negatives, the motions the EBM
-itself ranks first (mined negatives), and both recipes from bin/train_all to bin/evaluate on the
-tiny preset."""
+(stored beside the data, rebuilt when it changes), the EBM's near negatives and the motions the
+EBM itself ranks first (mined negatives). The bank recipe end to end is in test_evaluation."""
 import dataclasses
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dmo_jax import losses, mining, neighbours, workflow
+from dmo_jax import losses, mining, neighbours
 from dmo_jax.config import RECIPES, get_preset
 from dmo_jax.data import MotionDataset
 from dmo_jax.networks import EBMNet
 from dmo_jax.vae import VAENet
-from envs import dataset
 from envs.motion import NUM_STEPS, POSE_DIM
-from envs.tasks import get_task
 
 from helpers import random_params
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = get_preset("tiny")
 K = np.array([[50.0, 0, 31.5], [0, 50.0, 31.5], [0, 0, 1]], np.float32)
 
@@ -176,36 +169,3 @@ def test_recipe_settings_and_their_errors():
         get_preset("cpu").with_overrides(["ebm_near_negatives=12"])
     with pytest.raises(ValueError, match="exceeds near_pool"):
         get_preset("cpu").with_overrides(["ebm_near_negatives=6", "near_pool=4"])
-
-
-def test_each_recipe_trains_and_evaluates_end_to_end(tmp_path):
-    data, work = tmp_path / "data", tmp_path / "runs"
-    task = get_task("reach_target", TINY.image_size)
-    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
-    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
-    rows = {}
-    for recipe in RECIPES:
-        preset = get_preset("tiny", recipe=recipe)
-        summary = workflow.train_task("reach_target", preset, data, work, log=lambda m: None)
-        assert 0.0 <= summary["ebm"]["heldout_near_top1"] <= 1.0
-        assert summary["dmo"]["heldout_near_position_before"] > 0 and summary["dmo"]["heldout_near_position_after"] > 0
-        out = tmp_path / f"{recipe}.json"
-        proc = subprocess.run([sys.executable, "bin/evaluate", "--task", "reach_target", "--method", "sort,dmo",
-                               "--preset", "tiny", "--recipe", recipe, "--data", str(data), "--workdir", str(work),
-                               "--episodes", "4", "--n", "2", "--backend", "mujoco", "--json", str(out)],
-                              cwd=ROOT, capture_output=True, text=True, timeout=600)
-        assert proc.returncode == 0, proc.stderr
-        payload = json.loads(out.read_text())
-        assert payload["settings"]["recipe"] == recipe
-        rows[recipe] = [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]]
-        dmo = next(r for r in payload["results"] if r["method"] == "dmo")
-        assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
-    assert rows == {"paper": ["sort n=2", "dmo n=2 R=1"], "bank": ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]}
-    # one VAE; an EBM and a DMO per recipe (the bank's heads read the depth cue)
-    nets = sorted(p.name for p in (work / "reach_target" / "tiny" / "concat").iterdir())
-    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-mined8-cue"]
-    assert (data / "reach_target" / "train" / neighbours.INDEX_FILE).is_file()
-    # the bank EBM trained its last 8 steps on its own ranking of the bank, stored beside it
-    ebm_dir = work / "reach_target" / "tiny" / "concat" / nets[-1]
-    assert np.load(ebm_dir / mining.INDEX_FILE).shape == (20, 16)
-    assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["step"] == 20

@@ -207,8 +207,9 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
                 t0 = time.perf_counter()
                 records = [_record(r, run, preset) for r in evaluate_run(run, task, preset, episodes, data, workdir,
                                                                          backend, seed, log)]
-                payload = payload or {"provenance": provenance(preset, episodes, command), "results": []}
-                payload["results"] += records
+                # the provenance is that of the run that last added results
+                payload = {"provenance": provenance(preset, episodes, command),
+                           "results": (payload or {}).get("results", []) + records}
                 write_json(path, payload)  # after every run and task: a kill loses at most one
                 log(f"[table {table}] {task} {run.name}: " + ", ".join(
                     f"{row_label(r, r['settings'])} {100 * r['success_rate']:.0f} %" for r in records)

@@ -49,9 +49,12 @@ def test_rows_made_with_settings_the_preset_no_longer_has_are_replaced_not_mixed
     old = {**reproduce._record(made(0), run, cpu), "settings": {**reproduce._settings(run, cpu), "depth_cue": False}}
     path.write_text(json.dumps({"provenance": {"preset": "cpu", "episodes": 2}, "results": [old]}))
     reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,
-                        log=lambda m: None)
-    (row,) = json.loads(path.read_text())["results"]
+                        command=["--tables", "6"], log=lambda m: None)
+    payload = json.loads(path.read_text())
+    (row,) = payload["results"]
     assert row["successes"] == 2 and row["settings"]["depth_cue"] is True
+    # the file says how its new results were made
+    assert payload["provenance"]["command"] == "bin/reproduce --tables 6" and "versions" in payload["provenance"]
     # made with today's settings, it is done: nothing is evaluated again
     monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: pytest.fail("evaluated a done row"))
     reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,

@@ -27,8 +27,7 @@ Rows = dict[str, dict[str, np.ndarray]]
 def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row (``(coarse 4/32)`` after a
     two-stage bank scoring other than those of ``SAME_AS_FULL``, which share the full scoring's
-    row); a DMO trained with a non-default
-    number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
+    row); a DMO trained with a non-default number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
     inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
     recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), an EBM trained on its own ranking of
     the bank where its recipe's is not, or the reverse (``(mined negatives)``, ``(no mined negatives)``),

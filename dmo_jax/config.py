@@ -348,9 +348,9 @@ CPU = Preset(
     # the bank recipe"). With 200 mined EBM steps after the 500 (retrained on regenerated data):
     # 84.9 % against 77.2 %, put_knife 33 -> 53 % ("The cpu default on nine tasks").
     # Coarse bank scoring: every 6th pose, the best 64 rescored in full. On the nine tasks x 300
-    # test scenes with these networks it kept 99.96-100 % of the full scoring's top 8 and the same
-    # successes in every scene, at 3.2x less wall time (BENCHMARKS.md, "Coarse-to-fine bank
-    # scoring"); every 4th pose also kept them all, at 2.9x.
+    # test scenes with these networks it kept 99.96-100 % of the full scoring's top 8, and sort
+    # solved the same scenes, in 3.4x less time than the full scoring (BENCHMARKS.md,
+    # "Coarse-to-fine bank scoring"); every 4th pose kept them all too, with more work.
     coarse=CoarseRanking(stride=6, keep=64),
 ).with_recipe("bank")
 

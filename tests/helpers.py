@@ -1,4 +1,10 @@
-"""Shared test helpers: random parameters and motions without compiling ``init``."""
+"""Shared test helpers: random parameters and motions without compiling ``init``; a directory
+built once per run of the suite and shared by its worker processes."""
+import fcntl
+import json
+from pathlib import Path
+from typing import Callable
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,3 +37,18 @@ def random_motions(key, n):
     m = m.at[..., 9].set(jax.random.uniform(k2, (n, NUM_STEPS)))
     m = m.at[..., 2].set(jax.random.uniform(k3, (n, NUM_STEPS), minval=0.3, maxval=1.5))
     return m.at[..., 10].set(jnp.asarray(time_grid()))
+
+
+def built_once(tmp_path_factory, worker_id: str, name: str, build: Callable[[Path], dict]) -> tuple[Path, dict]:
+    """``(root, info)``: ``build(root)`` run once per run of the suite, whichever worker process
+    asks first; the others wait for it, then share ``root`` and the JSON ``info`` it returned.
+    Users must not write into ``root`` (copy it first)."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base if worker_id == "master" else base.parent  # pytest-xdist: the workers' common parent
+    root, done = shared / name, shared / f"{name}.json"
+    with open(shared / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, even if build raises
+        if not done.is_file():
+            root.mkdir(exist_ok=True)
+            done.write_text(json.dumps(build(root)))
+    return root, json.loads(done.read_text())

@@ -1,6 +1,7 @@
 """Success evaluation of learned methods: bin/train_all -> bin/evaluate end to end on
 the tiny preset, sweeps, JSON, visualisations (a figure and an MP4 per episode)."""
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,8 @@ from dmo_jax import workflow
 from dmo_jax.config import get_preset
 from envs import dataset
 from envs.tasks import get_task
+
+from helpers import built_once
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = get_preset("tiny")
@@ -25,20 +28,20 @@ def _run(*args, check=True):
     return proc
 
 
-# The module's tests share one trained work directory: bin/test keeps them on one worker.
-pytestmark = pytest.mark.xdist_group("trained")
-
-
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
+def trained(tmp_path_factory, worker_id):
     """Tiny datasets (20 train, 4 test episodes) and a tiny VAE + EBM + DMO of the paper's recipe
-    trained on them, with the training summary."""
-    data, work = tmp_path_factory.mktemp("data"), tmp_path_factory.mktemp("runs")
-    task = get_task(TASK, TINY.image_size)
-    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
-    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
-    summary = workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
-    return data, work, summary
+    trained on them, with the training summary; trained once for all of the suite's workers."""
+
+    def build(root):
+        data, work = root / "data", root / "runs"
+        task = get_task(TASK, TINY.image_size)
+        dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
+        dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
+        return workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
+
+    root, summary = built_once(tmp_path_factory, worker_id, "trained-reach_target", build)
+    return root / "data", root / "runs", summary
 
 
 def _check_summary(summary):
@@ -171,7 +174,8 @@ def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down
 def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
     from dmo_jax import mining, neighbours
 
-    data, work, _ = trained  # beside the paper's recipe, trained there
+    shared_data, shared_work, _ = trained  # beside the paper's recipe, trained there (in a copy: it is shared)
+    data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
     summary = workflow.train_task(TASK, get_preset("tiny", recipe="bank"), data, work, log=lambda m: None)
     _check_summary(summary)
     out = tmp_path / "bank.json"

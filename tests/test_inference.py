@@ -58,11 +58,14 @@ def test_top_candidates_then_refine_equals_predict(models, bank, method, R):
     np.testing.assert_allclose(ranking.feature, jax.vmap(lambda x: ebm.encode(models.ebm, x))(images), atol=1e-6)
     sort = predict(models, images, bank, key, preset=TINY, method="sort", n=3)
     np.testing.assert_array_equal(ranking.motions, sort.candidates)  # the bank's top 3, best first
-    np.testing.assert_array_equal(ranking.energies, sort.energies)
+    np.testing.assert_allclose(ranking.energies, sort.energies, rtol=1e-6, atol=1e-6)  # two programs: to rounding
     split = inference.refine(models, images, ranking, key, preset=TINY, method=method, R=R)
     np.testing.assert_allclose(split.candidates, whole.candidates, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(split.energies, whole.energies, rtol=1e-5, atol=1e-5)
+    if method != "dmo":
+        return
     # bare starting motions, or a ranking without F: F and the starts' energies are recomputed
+    # (before any method runs: checked with one)
     for start in (ranking.motions, ranking._replace(feature=None)):
         again = inference.refine(models, images, start, key, preset=TINY, method=method, R=R)
         np.testing.assert_allclose(again.candidates, whole.candidates, rtol=1e-5, atol=1e-5)

@@ -250,6 +250,7 @@ def test_augmentation_changes_rgb_only():
 _TWO_DEVICES = r"""
 import sys, json
 sys.path.insert(0, sys.argv[1])
+sys.path.insert(0, sys.argv[1] + "/tests")
 from envs.platform import setup
 setup()
 import jax, optax, numpy as np
@@ -261,11 +262,14 @@ rng = np.random.default_rng(0)
 motions = np.concatenate([rng.uniform(-1, 1, (8, 101, 10)), np.tile(np.linspace(0, 1, 101)[None, :, None], (8, 1, 1))], -1)
 ds = data_lib.MotionDataset(rng.uniform(0, 1, (8, 32, 32, 4)).astype(np.float32), motions.astype(np.float32))
 p = get_preset("tiny")
-p = dataclasses.replace(p, train=dataclasses.replace(p.train, ebm_batch=4))
-vae = training.VAENet.from_preset(p).init(jax.random.key(3))
+# a two-level encoder: what is compared is the sharding of one step, and this compiles faster
+p = dataclasses.replace(p, encoder=dataclasses.replace(p.encoder, dims=(8, 16), enc_depths=(1, 1), dec_depths=(1,)),
+                        train=dataclasses.replace(p.train, ebm_batch=4))
+from helpers import random_params  # not init: its op-by-op compilation would take longer than the step
+vae = random_params(training.VAENet.from_preset(p), 3)
 spec = training.ebm_spec(p)
 tx = optax.sgd(1e4)  # the update is (a multiple of) the gradient: the comparison is of gradients
-params = spec.init_fn(jax.random.key(0))
+params = random_params(training.EBMNet(p))
 step = jax.jit(training.make_train_step(spec, tx))
 out = {}
 for name, devices in (("one", jax.devices()[:1]), ("two", jax.devices())):

@@ -24,4 +24,3 @@ setup()
 # The tests' own processes read and write the same cache: most tests build the same tiny networks
 # and training steps as other tests, which then load them instead of compiling them again.
 enable_compilation_cache()
-

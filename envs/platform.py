@@ -25,16 +25,22 @@ def setup() -> None:
     configure_jax_for_cpu()
 
 
+def add_xla_flag(flag: str) -> bool:
+    """Append ``flag`` (``--name=value``) to ``XLA_FLAGS`` unless the variable already names it
+    (a value the user set is kept); returns whether it was added."""
+    current = os.environ.get("XLA_FLAGS", "")
+    if flag.split("=")[0] in current:
+        return False
+    os.environ["XLA_FLAGS"] = f"{current} {flag}".strip()
+    return True
+
+
 def configure_jax_for_cpu() -> None:
     """Append the CPU flags to ``XLA_FLAGS`` unless the user already set them.
 
     XLA reads the variable when the backend starts, so once JAX has created a device this
     changes nothing.
     """
-    current = os.environ.get("XLA_FLAGS", "")
-    missing = [f for f in _CPU_FLAGS if f.split("=")[0] not in current]
-    if not missing:
-        return
     jax = sys.modules.get("jax")
     if jax is not None:
         try:
@@ -44,7 +50,8 @@ def configure_jax_for_cpu() -> None:
                 return
         except (ImportError, AttributeError):
             pass
-    os.environ["XLA_FLAGS"] = " ".join([current, *missing]).strip()
+    for flag in _CPU_FLAGS:
+        add_xla_flag(flag)
 
 
 def expose_cpu_cores_as_devices() -> None:
@@ -56,12 +63,9 @@ def expose_cpu_cores_as_devices() -> None:
     harmless on accelerators; a device count the user set is kept. Must run before JAX
     initialises its backend.
     """
-    current = os.environ.get("XLA_FLAGS", "")
-    if "--xla_force_host_platform_device_count" in current:
-        return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if cores > 1:
-        os.environ["XLA_FLAGS"] = f"{current} --xla_force_host_platform_device_count={cores}".strip()
+        add_xla_flag(f"--xla_force_host_platform_device_count={cores}")
 
 
 def enable_compilation_cache() -> str | None:

@@ -12,15 +12,38 @@ if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
     os.environ["DMO_JAX_COMPILATION_CACHE"] = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
     atexit.register(shutil.rmtree, os.environ["DMO_JAX_COMPILATION_CACHE"], ignore_errors=True)
 
+import pytest  # noqa: E402
+
+from envs.platform import add_xla_flag, enable_compilation_cache, setup  # noqa: E402
+from helpers import built_once  # noqa: E402
+
 # The tests run tiny networks on little data, so compiling is most of their time: XLA's CPU
 # back-end without its LLVM optimisations compiles the tiny preset's training in half the time.
 # The commands themselves keep the full optimisation. The tests' subprocesses inherit the flag.
-if "--xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
-
-from envs.platform import enable_compilation_cache, setup  # noqa: E402
-
+add_xla_flag("--xla_backend_optimization_level=0")
 setup()
 # The tests' own processes read and write the same cache: most tests build the same tiny networks
 # and training steps as other tests, which then load them instead of compiling them again.
 enable_compilation_cache()
+
+
+@pytest.fixture(scope="session")
+def trained(tmp_path_factory, worker_id):
+    """``(data, runs, summary)``: tiny datasets of reach_target (20 train, 4 test episodes) and a
+    tiny VAE + EBM + DMO of the paper's recipe trained on them, with the training summary; built
+    once for all of the suite's workers. Tests must not write into them (copy them first)."""
+    from dmo_jax import workflow
+    from dmo_jax.config import get_preset
+    from envs import dataset
+    from envs.tasks import get_task
+
+    def build(root):
+        data, work = root / "data", root / "runs"
+        tiny = get_preset("tiny")
+        task = get_task("reach_target", tiny.image_size)
+        dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
+        dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
+        return workflow.train_task("reach_target", tiny, data, work, log=lambda m: None)
+
+    root, summary = built_once(tmp_path_factory, worker_id, "trained-reach_target", build)
+    return root / "data", root / "runs", summary

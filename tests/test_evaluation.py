@@ -12,13 +12,10 @@ import pytest
 from dmo_jax import workflow
 from dmo_jax.config import get_preset
 from envs import dataset
-from envs.tasks import get_task
-
-from helpers import built_once
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = get_preset("tiny")
-TASK = "reach_target"
+TASK = "reach_target"  # the task of the shared `trained` fixture (conftest.py)
 
 
 def _run(*args, check=True):
@@ -26,22 +23,6 @@ def _run(*args, check=True):
     if check:
         assert proc.returncode == 0, proc.stderr
     return proc
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory, worker_id):
-    """Tiny datasets (20 train, 4 test episodes) and a tiny VAE + EBM + DMO of the paper's recipe
-    trained on them, with the training summary; trained once for all of the suite's workers."""
-
-    def build(root):
-        data, work = root / "data", root / "runs"
-        task = get_task(TASK, TINY.image_size)
-        dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)
-        dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
-        return workflow.train_task(TASK, TINY, data, work, log=lambda m: None)
-
-    root, summary = built_once(tmp_path_factory, worker_id, "trained-reach_target", build)
-    return root / "data", root / "runs", summary
 
 
 def _check_summary(summary):

@@ -751,3 +751,15 @@ def test_the_missing_dataset_hint_run_as_printed_makes_the_dataset_needed(tmp_pa
     generate_data.main(hint[1:] + ["--train", "3", "--test", "2"])  # the printed command, fewer episodes
     split = dataset.load_split(data, TASK, "test")
     assert split.meta["image_size"] == TINY.image_size and len(split.motions) == 2
+
+
+def test_xla_flags_the_user_set_are_kept(monkeypatch):
+    from envs.platform import add_xla_flag, expose_cpu_cores_as_devices
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3 --xla_cpu_use_fusion_emitters=true")
+    assert not add_xla_flag("--xla_cpu_use_fusion_emitters=false")
+    expose_cpu_cores_as_devices()
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3 --xla_cpu_use_fusion_emitters=true"
+    monkeypatch.delenv("XLA_FLAGS")
+    assert add_xla_flag("--xla_cpu_use_fusion_emitters=false")
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=false"

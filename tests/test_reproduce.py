@@ -1,5 +1,6 @@
 """bin/reproduce: the tables from nothing, written as files, rendered, and resumable."""
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +13,7 @@ from envs import dataset
 from envs.tasks import get_task
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = ("pick_up_cup", "push_button")
+TASKS = ("reach_target", "push_button")  # reach_target: the suite's shared tiny networks
 
 
 def test_tables_are_replaced_between_their_markers_and_appended_where_missing(tmp_path):
@@ -66,31 +67,33 @@ def _run(*args):
                           text=True, timeout=1800)
 
 
-def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(tmp_path):
-    data = tmp_path / "data"
-    for name in TASKS:
-        task = get_task(name, 32)
-        dataset.generate_split(task, "train", 16, data, batch=16, verbose=False)
-        dataset.generate_split(task, "test", 10, data, batch=10, verbose=False)
+def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(trained, tmp_path):
+    shared_data, shared_work, _ = trained  # reach_target, trained (in a copy: it is shared)
+    data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
+    task = get_task(TASKS[1], 32)
+    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)  # the bank of the shared task
+    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
     report = tmp_path / "REPORT.md"
     report.write_text("# Report\n")
-    args = ["--tables", "5", "--tasks", ",".join(TASKS), "--preset", "tiny", "--episodes", "10", "--data",
-            str(data), "--workdir", str(tmp_path / "runs"), "--results", str(tmp_path / "results"), "--report",
-            str(report)]
+    args = ["--tables", "5", "--tasks", ",".join(TASKS), "--preset", "tiny", "--episodes", "4", "--data",
+            str(data), "--workdir", str(work), "--results", str(tmp_path / "results"), "--report", str(report)]
     first = _run(*args)
     assert first.returncode == 0, first.stderr
+    # the trained task is loaded, the other one trained
+    trained_first, rest = first.stderr.split(f"{TASKS[1]} paper-n: training what is missing")
+    assert "train ebm" not in trained_first and "train ebm" in rest
     files = {"5": tmp_path / "results" / "table5.json"}
     for table, path in files.items():
         payload = json.loads(path.read_text())
         made = payload["provenance"]
-        assert (made["preset"], made["episodes"]) == ("tiny", 10) and "jax" in made["versions"]
+        assert (made["preset"], made["episodes"]) == ("tiny", 4) and "jax" in made["versions"]
         assert made["command"].startswith("bin/reproduce --tables 5")
         records = payload["results"]
         assert {r["task"] for r in records} == set(TASKS)
-        assert all(r["episodes"] == 10 and r["successes"] == sum(r["episode_success"]) for r in records)
+        assert all(r["episodes"] == 4 and r["successes"] == sum(r["episode_success"]) for r in records)
         assert all(r["settings"]["recipe"] == "paper" and r["settings"]["dmo_inputs"] == "decoded" for r in records)
-        # n = 1, 8 and 1,000, the last the whole bank of 16
-        assert {(r["n"], r["R"]) for r in records if r["task"] == TASKS[0]} == {(1, 1), (8, 1), (16, 1)}
+        # n = 1, 8 and 1,000, the last the whole bank of 20
+        assert {(r["n"], r["R"]) for r in records if r["task"] == TASKS[1]} == {(1, 1), (8, 1), (20, 1)}
         rows = load_evaluations([path])  # bin/compare reads a table file
         assert len(rows) == 3 and all(set(per_task) == set(TASKS) for per_task in rows.values())
     text = report.read_text()
@@ -104,5 +107,5 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
     assert "training" not in second.stderr and second.stderr.count(": done") == 2
     assert {p: p.read_bytes() for p in files.values()} == before
     # results of another preset or scene count are never mixed in
-    other = _run(*args[:-10], "--episodes", "5", *args[-8:])
-    assert other.returncode == 2 and "on 10 scenes, not 'tiny' on 5" in other.stderr
+    other = _run(*args[:-10], "--episodes", "3", *args[-8:])
+    assert other.returncode == 2 and "on 4 scenes, not 'tiny' on 3" in other.stderr

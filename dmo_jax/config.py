@@ -138,7 +138,7 @@ class TrainConfig:
     # "decoded": the DMO's inputs are the VAE's decodings of z (the paper's; both recipes). "offset":
     # the clean motion plus (decoding of z - decoding of mu), the same perturbation without the VAE's
     # reconstruction error, which bank motions do not have: with the bank recipe and no depth cue it
-    # solved 72.3 % of nine tasks against 70.2 % (BENCHMARKS.md, "The DMO's inputs").
+    # solved 72.3 % of nine tasks against 70.2 % (BENCHMARKS.md, "What each part of the recipe adds").
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
 
@@ -344,8 +344,8 @@ CPU = Preset(
     # prediction sees") the DMO solved 72.3 % on average against the paper recipe's 54.2 %
     # (70.2 % with the paper's DMO inputs beside the bank EBM, which lost push_button's press:
     # 64 against 99 %; 57.6 % with the near negatives alone, without graded targets). With the
-    # depth cue (and the paper's DMO inputs) 77.9 %, reach_target 35 -> 79 % ("The depth cue in
-    # the bank recipe"). With 200 mined EBM steps after the 500 (retrained on regenerated data):
+    # depth cue (and the paper's DMO inputs) 77.9 %, reach_target 35 -> 79 % ("What each part
+    # of the recipe adds"). With 200 mined EBM steps after the 500 (retrained on regenerated data):
     # 84.9 % against 77.2 %, put_knife 33 -> 53 % ("The cpu default on nine tasks").
     # Coarse bank scoring: every 6th pose, the best 64 rescored in full. On the nine tasks x 300
     # test scenes with these networks it kept 99.96-100 % of the full scoring's top 8, and sort

@@ -9,11 +9,9 @@ import pytest
 
 from dmo_jax import reproduce
 from dmo_jax.comparison import load_evaluations
-from envs import dataset
-from envs.tasks import get_task
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = ("reach_target", "push_button")  # reach_target: the suite's shared tiny networks
+TASK = "reach_target"  # the task of the suite's shared tiny networks (conftest.py, `trained`)
 
 
 def test_tables_are_replaced_between_their_markers_and_appended_where_missing(tmp_path):
@@ -68,44 +66,38 @@ def _run(*args):
 
 
 def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(trained, tmp_path):
-    shared_data, shared_work, _ = trained  # reach_target, trained (in a copy: it is shared)
+    shared_data, shared_work, _ = trained  # reach_target's data and networks (in a copy: they are shared)
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
-    task = get_task(TASKS[1], 32)
-    dataset.generate_split(task, "train", 20, data, batch=20, verbose=False)  # the bank of the shared task
-    dataset.generate_split(task, "test", 4, data, batch=4, verbose=False)
+    (dmo,) = work.glob(f"{TASK}/tiny/concat/dmo-*")
+    shutil.rmtree(dmo)  # the command trains what is missing and loads the rest
     report = tmp_path / "REPORT.md"
     report.write_text("# Report\n")
-    args = ["--tables", "5", "--tasks", ",".join(TASKS), "--preset", "tiny", "--episodes", "4", "--data",
-            str(data), "--workdir", str(work), "--results", str(tmp_path / "results"), "--report", str(report)]
+    args = ["--tables", "5", "--tasks", TASK, "--preset", "tiny", "--episodes", "4", "--data", str(data),
+            "--workdir", str(work), "--results", str(tmp_path / "results"), "--report", str(report)]
     first = _run(*args)
     assert first.returncode == 0, first.stderr
-    # the trained task is loaded, the other one trained
-    trained_first, rest = first.stderr.split(f"{TASKS[1]} paper-n: training what is missing")
-    assert "train ebm" not in trained_first and "train ebm" in rest
-    files = {"5": tmp_path / "results" / "table5.json"}
-    for table, path in files.items():
-        payload = json.loads(path.read_text())
-        made = payload["provenance"]
-        assert (made["preset"], made["episodes"]) == ("tiny", 4) and "jax" in made["versions"]
-        assert made["command"].startswith("bin/reproduce --tables 5")
-        records = payload["results"]
-        assert {r["task"] for r in records} == set(TASKS)
-        assert all(r["episodes"] == 4 and r["successes"] == sum(r["episode_success"]) for r in records)
-        assert all(r["settings"]["recipe"] == "paper" and r["settings"]["dmo_inputs"] == "decoded" for r in records)
-        # n = 1, 8 and 1,000, the last the whole bank of 20
-        assert {(r["n"], r["R"]) for r in records if r["task"] == TASKS[1]} == {(1, 1), (8, 1), (20, 1)}
-        rows = load_evaluations([path])  # bin/compare reads a table file
-        assert len(rows) == 3 and all(set(per_task) == set(TASKS) for per_task in rows.values())
-    text = report.read_text()
-    for table in files:
-        section = text.split(f"<!-- table{table} -->")[1].split(f"<!-- /table{table} -->")[0]
-        assert "| method | CB | PC | PB |" in section and "paper R=1, n=1000" in section
-        assert "dmo n=8 R=1 |" in section and "preset `tiny`" in section
-    before = {p: p.read_bytes() for p in files.values()}
+    assert "train dmo" in first.stderr and "train ebm" not in first.stderr and dmo.is_dir()
+    path = tmp_path / "results" / "table5.json"
+    payload = json.loads(path.read_text())
+    made = payload["provenance"]
+    assert (made["preset"], made["episodes"]) == ("tiny", 4) and "jax" in made["versions"]
+    assert made["command"].startswith("bin/reproduce --tables 5")
+    records = payload["results"]
+    assert {r["task"] for r in records} == {TASK}
+    assert all(r["episodes"] == 4 and r["successes"] == sum(r["episode_success"]) for r in records)
+    assert all(r["settings"]["recipe"] == "paper" and r["settings"]["dmo_inputs"] == "decoded" for r in records)
+    # n = 1, 8 and 1,000, the last the whole bank of 20
+    assert {(r["n"], r["R"]) for r in records} == {(1, 1), (8, 1), (20, 1)}
+    rows = load_evaluations([path])  # bin/compare reads a table file
+    assert len(rows) == 3 and all(set(per_task) == {TASK} for per_task in rows.values())
+    section = report.read_text().split("<!-- table5 -->")[1].split("<!-- /table5 -->")[0]
+    assert "| method | CB | PC | PB |" in section and "paper R=1, n=1000" in section
+    assert "dmo n=8 R=1 |" in section and "preset `tiny`" in section
+    before = path.read_bytes()
     second = _run(*args)
     assert second.returncode == 0, second.stderr
-    assert "training" not in second.stderr and second.stderr.count(": done") == 2
-    assert {p: p.read_bytes() for p in files.values()} == before
+    assert "training" not in second.stderr and second.stderr.count(": done") == 1
+    assert path.read_bytes() == before
     # results of another preset or scene count are never mixed in
     other = _run(*args[:-10], "--episodes", "3", *args[-8:])
     assert other.returncode == 2 and "on 4 scenes, not 'tiny' on 3" in other.stderr

@@ -237,8 +237,8 @@ class Preset:
         if self.encoder.out_dim != self.head.width:  # (+1 channel of depth with head.depth_cue)
             raise ValueError("Preset: encoder.out_dim must equal head.width (F channels are tokens)")
         factor = 4 * 2 ** (len(self.encoder.dims) - 1)
-        if self.image_size % factor:
-            raise ValueError(f"Preset: image_size must be divisible by {factor}")
+        if self.image_size < factor or self.image_size % factor:
+            raise ValueError(f"Preset: image_size must be a positive multiple of {factor}, got {self.image_size}")
         if self.image_size % self.head.vit_tokens_per_side:
             raise ValueError("Preset: image_size must be divisible by head.vit_tokens_per_side")
 
@@ -258,10 +258,10 @@ class Preset:
 
     def with_overrides(self, overrides: list[str]) -> "Preset":
         """This preset with settings replaced, each given as ``"section.field=value"``: any
-        :class:`TrainConfig` field (``"train.dmo_steps=2400"``) or one of :data:`HEAD_OVERRIDES`
-        (``"head.depth_cue=true"``); a field name alone stands for the one section that has it.
-        Values are checked by the section's own rules; raises ``ValueError`` naming the bad
-        item and what was expected."""
+        :class:`TrainConfig` field (``"train.dmo_steps=2400"``), one of :data:`HEAD_OVERRIDES`
+        (``"head.depth_cue=true"``) or the image size (``"preset.image_size=96"``); a field name
+        alone stands for the one section that has it. Values are checked by the section's own
+        rules; raises ``ValueError`` naming the bad item and what was expected."""
         preset = self
         for item in overrides:
             key, sep, text = item.partition("=")
@@ -269,9 +269,10 @@ class Preset:
             if section is None:
                 raise ValueError(f"--set {item!r}: expected SECTION.FIELD=VALUE, e.g. train.dmo_steps=2400 or "
                                  "head.depth_cue=true, with FIELD one of train."
-                                 f"{{{', '.join(f.name for f in dataclasses.fields(TrainConfig))}}} or head."
-                                 f"{{{', '.join(HEAD_OVERRIDES)}}} (the section may be left out)")
-            config = getattr(preset, section)
+                                 f"{{{', '.join(f.name for f in dataclasses.fields(TrainConfig))}}}, head."
+                                 f"{{{', '.join(HEAD_OVERRIDES)}}} or preset.image_size (the section may be left "
+                                 "out)")
+            config = preset if section == "preset" else getattr(preset, section)
             kind = type(getattr(config, name))
             try:
                 if kind not in (bool, int, float, str) or (kind is bool and text.lower() not in ("true", "false", "1", "0")):
@@ -280,24 +281,26 @@ class Preset:
             except ValueError:
                 raise ValueError(f"--set {item!r}: {name} takes a {kind.__name__}, got {text!r}") from None
             try:
-                preset = dataclasses.replace(preset, **{section: dataclasses.replace(config, **{name: value})})
+                preset = (dataclasses.replace(preset, **{name: value}) if section == "preset" else
+                          dataclasses.replace(preset, **{section: dataclasses.replace(config, **{name: value})}))
             except ValueError as err:
                 raise ValueError(f"--set {item!r}: {err}") from None
         return preset
 
 
-#: What ``--set`` reaches, by the name before the dot: every training setting, and the head
-#: settings that change how it reads depth. Those change what the networks compute without
-#: changing any parameter's shape, so checkpoints record them (``training``) and refuse to
-#: load under other values.
-OVERRIDE_SECTIONS = ("train", "head")
+#: What ``--set`` reaches besides every training setting, by the name before the dot: the head
+#: settings that change how it reads depth, and the image size. Those change what the networks
+#: compute without changing any parameter's shape, so checkpoints record them (``training``) and
+#: refuse to load under other values.
 HEAD_OVERRIDES = ("depth_cue", "depth_cue_range")
+PRESET_OVERRIDES = ("image_size",)
 
 
 def _override_target(key: str) -> tuple[str | None, str | None]:
     """``(section, field)`` that ``--set``'s ``key`` names (``"train.lr"``, or a field name only
     one section has: ``"lr"``); ``(None, None)`` if none."""
-    owners = {"train": {f.name for f in dataclasses.fields(TrainConfig)}, "head": set(HEAD_OVERRIDES)}
+    owners = {"train": {f.name for f in dataclasses.fields(TrainConfig)}, "head": set(HEAD_OVERRIDES),
+              "preset": set(PRESET_OVERRIDES)}
     section, dot, name = key.partition(".")
     if dot:
         return (section, name) if name in owners.get(section, ()) else (None, None)

@@ -29,7 +29,7 @@ from jax.sharding import PartitionSpec as P
 from envs.progress import Progress
 
 from . import losses, run_metrics
-from .config import Preset, TrainConfig
+from .config import PRESETS, Preset, TrainConfig
 from .data import MotionDataset, augment_batch
 from .networks import DMONet, EBMNet
 from .vae import VAENet
@@ -288,10 +288,10 @@ def _checkpoint_manager(path: Path, keep: int) -> ocp.CheckpointManager:
 
 
 def _head_meta(preset: Preset) -> dict:
-    """How the head reads depth (``config.HEAD_OVERRIDES``). The cue's range changes what a
+    """How the head reads depth (``config.HEAD_OVERRIDES``) and the image size: they change what a
     checkpoint computes without changing any parameter's shape, so only this record tells."""
     head = preset.head
-    return {"depth_cue": head.depth_cue, "depth_cue_range": head.depth_cue_range}
+    return {"depth_cue": head.depth_cue, "depth_cue_range": head.depth_cue_range, "image_size": preset.image_size}
 
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
@@ -326,6 +326,8 @@ def _without_removed_settings(saved: dict, path: Path) -> dict:
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
     saved = {**_META_BEFORE, **_without_removed_settings(saved, path)}
+    if "image_size" not in saved and saved.get("preset") in PRESETS:  # made before the size could be set: its preset's
+        saved["image_size"] = PRESETS[saved["preset"]].image_size
     diff = {k: (saved.get(k), v) for k, v in expected.items()
             if saved.get(k) != v and not (k in _META_UNKNOWN_BEFORE and k not in saved)}
     if diff:

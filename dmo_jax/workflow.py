@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import training
-from .config import Preset
+from .config import PRESETS, Preset
 from .data import MotionDataset, motions_fingerprint, network_image
 from .neighbours import split_neighbours
 
@@ -32,7 +32,10 @@ class RunPaths:
 
     @classmethod
     def of(cls, workdir, task: str, preset: Preset) -> "RunPaths":
-        return cls(Path(workdir) / task / preset.name)
+        """``<workdir>/<task>/<preset>``, with ``-<size>px`` where the image size is not the preset's own."""
+        own = PRESETS.get(preset.name)
+        size = "" if own is None or own.image_size == preset.image_size else f"-{preset.image_size}px"
+        return cls(Path(workdir) / task / f"{preset.name}{size}")
 
     def vae(self) -> Path:
         return self.root / "vae"

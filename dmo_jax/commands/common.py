@@ -19,8 +19,10 @@ def add_preset_argument(parser) -> None:
 def add_set_argument(parser, purpose: str) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                         help=f"{purpose}: a training setting (train.FIELD, any dmo_jax.config.TrainConfig field, "
-                        "e.g. train.dmo_steps=2400) or how the head reads depth (head.depth_cue=true, "
-                        "head.depth_cue_range=0.1); the section may be left out; repeatable")
+                        "e.g. train.dmo_steps=2400), how the head reads depth (head.depth_cue=true, "
+                        "head.depth_cue_range=0.1) or the image size (preset.image_size=96, a multiple of 32 for "
+                        "cpu and paper; data then defaults to data/<size>px); the section may be left out; "
+                        "repeatable")
 
 
 def add_recipe_argument(parser, purpose: str = "what the networks train on") -> None:

@@ -12,6 +12,7 @@ from dmo_jax.config import PRESETS, VARIANTS, get_preset, override_label
 from dmo_jax.encoder import ConvNeXtUNet
 from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
 from dmo_jax.vae import VAENet
+from dmo_jax.workflow import RunPaths
 from envs.motion import NUM_STEPS, POSE_DIM, time_grid
 from helpers import random_motions, random_params
 
@@ -230,6 +231,15 @@ def test_train_overrides_replace_only_the_named_settings():
         ["lr=0.1", "lr=0.1", "depth_cue=true"]
     for bad in ("head.width=64", "encoder.out_dim=8", "train.depth_cue=true", "nope=1"):
         with pytest.raises(ValueError, match=f"--set '{bad}': expected SECTION.FIELD=VALUE"):
+            cpu.with_overrides([bad])
+    # the image size: any multiple of the encoder's total stride, run in a directory of its own
+    larger = cpu.with_overrides(["image_size=96"])
+    assert larger == cpu.with_overrides(["preset.image_size=96"]) and larger.image_size == 96
+    assert (larger.name, larger.train, larger.head) == (cpu.name, cpu.train, cpu.head)
+    assert RunPaths.of("runs", "reach_target", larger).root.name == "cpu-96px"
+    assert RunPaths.of("runs", "reach_target", cpu).root.name == "cpu"
+    for bad in ("image_size=100", "image_size=0"):
+        with pytest.raises(ValueError, match=f"--set '{bad}': Preset: image_size must be a positive multiple of 32"):
             cpu.with_overrides([bad])
 
 

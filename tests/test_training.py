@@ -177,7 +177,7 @@ def test_checkpoint_of_other_settings_fails_clearly(task_data, tmp_path):
         training.fit(training.vae_spec(_fast(TINY, 1)), task_data[0], tmp_path, verbose=False)
 
 
-def test_checkpoint_refuses_another_depth_cue_range(task_data, vae_params, tmp_path):
+def test_checkpoint_refuses_another_depth_cue_range_image_size_or_negative_count(task_data, vae_params, tmp_path):
     # the cue's range changes what the network computes but no parameter shape
     cue = _fast(TINY, 1).with_overrides(["depth_cue=true"])
     training.fit(training.ebm_spec(cue), task_data[0], tmp_path, extra=vae_params, verbose=False)
@@ -191,6 +191,13 @@ def test_checkpoint_refuses_another_depth_cue_range(task_data, vae_params, tmp_p
     # a checkpoint written before the counts were recorded loads under any
     saved = {"model": "ebm", "negatives": "in-data+vae"}
     training._check_meta(saved, {"model": "ebm", "negative_counts": [2, 4]}, tmp_path)
+    # the image size changes no parameter shape either
+    with pytest.raises(training.TrainingError, match=r"image_size: checkpoint has 32, expected 64"):
+        training.load_params(tmp_path, training.ebm_spec(cue.with_overrides(["image_size=64"])))
+    # one written before the size could be set was made at its preset's
+    training._check_meta({"model": "ebm", "preset": "cpu"}, {"model": "ebm", "image_size": 64}, tmp_path)
+    with pytest.raises(training.TrainingError, match=r"image_size: checkpoint has 64, expected 96"):
+        training._check_meta({"model": "ebm", "preset": "cpu"}, {"model": "ebm", "image_size": 96}, tmp_path)
 
 
 def test_checkpoint_of_a_removed_setting_loads_at_its_default_and_fails_clearly_otherwise(tmp_path):

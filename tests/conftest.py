@@ -1,5 +1,6 @@
 """Set the process up first (``envs.platform.setup``: the headless GL back-end and XLA's CPU
-flags), before any test module imports mujoco or jax."""
+flags), before any test module imports mujoco or jax; and the networks several test modules share
+(``trained``)."""
 import atexit
 import os
 import shutil
@@ -15,7 +16,6 @@ if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
 import pytest  # noqa: E402
 
 from envs.platform import add_xla_flag, enable_compilation_cache, setup  # noqa: E402
-from helpers import built_once  # noqa: E402
 
 # The tests run tiny networks on little data, so compiling is most of their time: XLA's CPU
 # back-end without its LLVM optimisations compiles the tiny preset's training in half the time.
@@ -25,6 +25,8 @@ setup()
 # The tests' own processes read and write the same cache: most tests build the same tiny networks
 # and training steps as other tests, which then load them instead of compiling them again.
 enable_compilation_cache()
+
+from helpers import built_once  # noqa: E402
 
 
 @pytest.fixture(scope="session")

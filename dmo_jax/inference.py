@@ -470,12 +470,17 @@ def _finite(result):
     return result
 
 
+def applicable_coarse(coarse: CoarseRanking | None, n: int, bank_size: int) -> CoarseRanking | None:
+    """``coarse`` where it keeps more than ``n`` and fewer than ``bank_size`` motions, else None
+    (the full scoring)."""
+    return coarse if coarse is not None and n < coarse.keep < bank_size else None
+
+
 def resolve_coarse(preset: Preset, coarse: CoarseRanking | None | str, n: int, bank_size: int):
     """The bank scoring a call asks for: ``coarse`` itself, or for ``"preset"`` the preset's
-    where it keeps more than ``n`` and fewer than ``bank_size`` motions (else None: full)."""
+    (:func:`applicable_coarse`)."""
     if isinstance(coarse, str) and coarse == "preset":
-        own = preset.coarse
-        return own if own is not None and n < own.keep < bank_size else None
+        return applicable_coarse(preset.coarse, n, bank_size)
     return coarse
 
 

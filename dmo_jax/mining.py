@@ -5,10 +5,10 @@ from the scene's scores lower than the motions near it. On put_knife_on_chopping
 motions that visit the knife and the board in the reverse order: their poses lie far from the
 positive's, so neither the nearest-motion negatives (``dmo_jax.neighbours``) nor random ones
 show them to the EBM. With ``TrainConfig.ebm_mined_steps`` the EBM, once trained for its
-``ebm_steps``, ranks the bank for every training image exactly as :func:`~dmo_jax.inference.predict`
-does (the preset's coarse scoring included) and trains on, drawing its near negatives from that
-ranking. The ranking is stored beside the EBM's checkpoints, so a resumed run trains on the same
-table::
+``ebm_steps``, ranks the bank for every training image as :func:`~dmo_jax.inference.predict`
+does (with the preset's ``mining_coarse`` scoring where it has one) and trains on, drawing its
+near negatives from that ranking. The ranking is stored beside the EBM's checkpoints, so a
+resumed run trains on the same table::
 
     mined.npy    int32 [N, K]   per training image, its K lowest-energy *other* training motions
     mined.json   {k, fingerprint, step}: the training motions, K and the EBM's step it was made at
@@ -27,7 +27,7 @@ from envs.progress import Progress
 
 from .config import Preset
 from .data import MotionDataset, motions_fingerprint
-from .inference import Models, bank_top_n, cache_bank, default_chunk, resolve_coarse
+from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk
 from .networks import EBMNet
 
 INDEX_FILE, INFO_FILE = "mined.npy", "mined.json"
@@ -44,13 +44,13 @@ def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, ba
                   log=print) -> np.ndarray:
     """``int32 [N, k]``: for each training image of ``dataset``, the indices of the ``k``
     lowest-energy training motions other than its own under the EBM, best first (the bank
-    scored as :func:`~dmo_jax.inference.predict` scores it)."""
+    scored as ``preset.mining_coarse`` says, else as :func:`~dmo_jax.inference.predict` scores it)."""
     n = len(dataset)
     if not 1 <= k < n:
         raise ValueError(f"k must be in [1, {n - 1}] for {n} training motions, got {k}")
     chunk = default_chunk()
     cache = cache_bank(Models(ebm_params), jnp.asarray(dataset.motions), preset=preset, chunk=chunk)
-    coarse = resolve_coarse(preset, "preset", k + 1, n)
+    coarse = applicable_coarse(preset.mining_coarse or preset.coarse, k + 1, n)
     log(f"ranking the bank with the EBM for {n} training images (each image's {k} lowest-energy other motions)")
     progress, parts = Progress("rank the bank", n), []
     for i in range(0, n, batch):

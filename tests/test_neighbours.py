@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from dmo_jax import losses, mining, neighbours
-from dmo_jax.config import RECIPES, get_preset
+from dmo_jax.config import RECIPES, CoarseRanking, get_preset
 from dmo_jax.data import MotionDataset
+from dmo_jax.inference import Models, top_candidates
 from dmo_jax.networks import EBMNet
 from dmo_jax.vae import VAENet
 from envs.motion import NUM_STEPS, POSE_DIM
@@ -152,6 +153,23 @@ def test_mined_rivals_are_the_ebms_lowest_energy_other_motions_and_are_stored_pe
     assert mining.stored_rivals(tmp_path, dataclasses.replace(data, motions=_motions(6, seed=2)), 3) is None
     with pytest.raises(ValueError, match="k must be in"):
         mining.ranked_rivals(params, preset, data, k=6)
+
+
+def test_mining_ranks_the_bank_with_the_presets_mining_scoring():
+    full = get_preset("tiny", recipe="bank")
+    preset = dataclasses.replace(full, mining_coarse=CoarseRanking(stride=50, keep=5))
+    params = random_params(EBMNet(preset))
+    rng = np.random.default_rng(3)
+    data = MotionDataset(rng.uniform(0, 1, (8, preset.image_size, preset.image_size, 4)).astype(np.float32),
+                         _motions(8))
+    table = mining.ranked_rivals(params, preset, data, k=3, batch=4, log=lambda m: None)
+    for i, row in enumerate(table):
+        ranked = np.asarray(top_candidates(Models(params), jnp.asarray(data.images[i]), jnp.asarray(data.motions),
+                                           preset=preset, n=4, coarse=preset.mining_coarse).motions)
+        others = [m for m in ranked if not np.array_equal(m, data.motions[i])]
+        np.testing.assert_array_equal(data.motions[row], others[:3])
+    # the coarse scoring ranks otherwise than the full one here, so the table shows which one ran
+    assert not np.array_equal(table, mining.ranked_rivals(params, full, data, k=3, batch=4, log=lambda m: None))
 
 
 def test_recipe_settings_and_their_errors():

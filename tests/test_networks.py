@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from dmo_jax.benchmarks.reference import plain_encoder_forward
-from dmo_jax.config import PRESETS, VARIANTS, get_preset, override_label
+from dmo_jax.config import DEFAULT_PRESET, PRESETS, VARIANTS, get_preset, override_label
 from dmo_jax.encoder import ConvNeXtUNet
 from dmo_jax.networks import DMONet, EBMNet, bilinear_sample, count_params
 from dmo_jax.vae import VAENet
 from dmo_jax.workflow import RunPaths
+from envs.commands.common import DEFAULT_IMAGE_SIZE, default_data_dir
 from envs.motion import NUM_STEPS, POSE_DIM, time_grid
 from helpers import random_motions, random_params
 
@@ -233,11 +234,13 @@ def test_train_overrides_replace_only_the_named_settings():
         with pytest.raises(ValueError, match=f"--set '{bad}': expected SECTION.FIELD=VALUE"):
             cpu.with_overrides([bad])
     # the image size: any multiple of the encoder's total stride, run in a directory of its own
-    larger = cpu.with_overrides(["image_size=96"])
-    assert larger == cpu.with_overrides(["preset.image_size=96"]) and larger.image_size == 96
-    assert (larger.name, larger.train, larger.head) == (cpu.name, cpu.train, cpu.head)
-    assert RunPaths.of("runs", "reach_target", larger).root.name == "cpu-96px"
+    smaller = cpu.with_overrides(["image_size=64"])
+    assert smaller == cpu.with_overrides(["preset.image_size=64"]) and smaller.image_size == 64
+    assert (smaller.name, smaller.train, smaller.head) == (cpu.name, cpu.train, cpu.head)
+    assert RunPaths.of("runs", "reach_target", smaller).root.name == "cpu-64px"
     assert RunPaths.of("runs", "reach_target", cpu).root.name == "cpu"
+    # bin/generate_data writes by default where the default preset's commands look
+    assert default_data_dir(DEFAULT_IMAGE_SIZE) == default_data_dir(get_preset(DEFAULT_PRESET).image_size) == "data/96px"
     for bad in ("image_size=100", "image_size=0"):
         with pytest.raises(ValueError, match=f"--set '{bad}': Preset: image_size must be a positive multiple of 32"):
             cpu.with_overrides([bad])

@@ -210,7 +210,7 @@ COMMAND_CASES = [
     # bin/generate_data
     _case("generate_data", ["--task", "make_tea", "--out", "{tmp}/d"], "unknown task 'make_tea'"),
     _case("generate_data", ["--task", "", "--out", "{tmp}/d"], "unknown task ''"),
-    _case("generate_data", ["--task", TASK, "--out", "{tmp}/d/128px"], "named for 128px images but --image-size is 64"),
+    _case("generate_data", ["--task", TASK, "--out", "{tmp}/d/128px"], "named for 128px images but --image-size is 96"),
     _case("generate_data", ["--task", TASK, "--train", "0", "--out", "{tmp}/d"], "--train must be a positive integer"),
     _case("generate_data", ["--task", TASK, "--test", "-3", "--out", "{tmp}/d"], "--test must be a positive integer"),
     _case("generate_data", ["--task", TASK, "--image-size", "0"], "--image-size must be between 1 and 512"),

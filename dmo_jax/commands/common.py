@@ -13,14 +13,14 @@ def add_preset_argument(parser) -> None:
 
     parser.add_argument("--preset", default=DEFAULT_PRESET, choices=tuple(PRESETS),
                         help=f"network sizes and training settings (default {DEFAULT_PRESET}): tiny for tests, cpu "
-                        "for a 2-core CPU at 64 px, paper = the paper's at 256 px")
+                        "for a 2-core CPU at 96 px, paper = the paper's at 256 px")
 
 
 def add_set_argument(parser, purpose: str) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                         help=f"{purpose}: a training setting (train.FIELD, any dmo_jax.config.TrainConfig field, "
                         "e.g. train.dmo_steps=2400), how the head reads depth (head.depth_cue=true, "
-                        "head.depth_cue_range=0.1) or the image size (preset.image_size=96, a multiple of 32 for "
+                        "head.depth_cue_range=0.1) or the image size (preset.image_size=64, a multiple of 32 for "
                         "cpu and paper; data then defaults to data/<size>px); the section may be left out; "
                         "repeatable")
 

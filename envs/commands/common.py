@@ -8,7 +8,7 @@ from pathlib import Path
 
 #: What ``bin/generate_data`` writes unless told: the default preset's (``cpu``) image size, so the
 #: commands that train and evaluate it find the data where they look.
-DEFAULT_IMAGE_SIZE = 64
+DEFAULT_IMAGE_SIZE = 96
 
 
 def default_data_dir(image_size: int) -> str:

@@ -123,14 +123,15 @@ def _record(result: dict, run: Run, preset: Preset) -> dict:
 
 
 def _settings(run: Run, preset: Preset) -> dict:
-    """What the rows of ``run`` on ``preset`` are made with (``comparison.row_label`` names them by it)."""
+    """What the rows of ``run`` on ``preset`` are made with (``comparison.row_label`` names them by it;
+    rows of files older than ``image_size`` were made at 64², the ``cpu`` preset's size then)."""
     from .training import mined_steps
 
     if run.recipe is None:
         return {}
     networks = run.networks(preset)
     return {**run.row_settings(), "dmo_inputs": networks.train.dmo_inputs, "depth_cue": networks.head.depth_cue,
-            "ebm_mined_steps": mined_steps(networks.train, run.negatives)}
+            "ebm_mined_steps": mined_steps(networks.train, run.negatives), "image_size": preset.image_size}
 
 
 def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:

@@ -45,13 +45,15 @@ def test_rows_made_with_settings_the_preset_no_longer_has_are_replaced_not_mixed
                                    "episode_success": [1] * successes + [0] * (2 - successes)}
     monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: [made(2)])
     path = tmp_path / "table6.json"
-    old = {**reproduce._record(made(0), run, cpu), "settings": {**reproduce._settings(run, cpu), "depth_cue": False}}
+    # made without the depth cue, at a size it did not record (files older than the field: 64²)
+    settings = {k: v for k, v in reproduce._settings(run, cpu).items() if k != "image_size"}
+    old = {**reproduce._record(made(0), run, cpu), "settings": {**settings, "depth_cue": False}}
     path.write_text(json.dumps({"provenance": {"preset": "cpu", "episodes": 2}, "results": [old]}))
     reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,
                         command=["--tables", "6"], log=lambda m: None)
     payload = json.loads(path.read_text())
     (row,) = payload["results"]
-    assert row["successes"] == 2 and row["settings"]["depth_cue"] is True
+    assert row["successes"] == 2 and row["settings"]["depth_cue"] is True and row["settings"]["image_size"] == 96
     # the file says how its new results were made
     assert payload["provenance"]["command"] == "bin/reproduce --tables 6" and "versions" in payload["provenance"]
     # made with today's settings, it is done: nothing is evaluated again

@@ -328,9 +328,9 @@ CPU = Preset(
     name="cpu",
     # 96 px: 0.9 cm per pixel on the table, where success needs about 1 cm (1.3 cm at 64 px). On
     # eight tasks x 300 test scenes the DMO solved 88.7 % against 83.0 % at 64 px (BENCHMARKS.md,
-    # "Image size"). Its training took 15.6-16.8 minutes a task instead of
-    # 12.6; the coarser mining ranking below and held-out evaluation at the end of each run only
-    # bring it to 14.1 (reach_target). The DMO's samples are not where to save: a DMO of 400
+    # "Image size"). Its training took 15.6-16.8 minutes a task instead of 12.6; the coarser
+    # mining ranking below and held-out evaluation at the end of each run only bring it to 14.1
+    # (reach_target). The DMO's samples are not where to save: a DMO of 400
     # steps, or of batches of 8, solved fewer reach_target scenes (89 and 93 against 97 %).
     image_size=96,
     encoder=EncoderConfig(dims=(32, 64, 128, 256), enc_depths=(1, 1, 3, 1), dec_depths=(1, 1, 1), out_dim=64),
@@ -365,7 +365,7 @@ CPU = Preset(
     # "Coarse-to-fine bank scoring"); every 4th pose kept them all too, with more work.
     coarse=CoarseRanking(stride=6, keep=64),
     # The mined steps' ranking of the bank (16 motions for each of 1,000 training images): every
-    # 12th pose, the best 32 rescored in full, 78 s against 128 s for the prediction's scoring.
+    # 12th pose, the best 32 rescored in full, 68-78 s against 128 s for the prediction's scoring.
     # It kept 99.96 % of that scoring's table on reach_target and 75 % on put_knife, where the
     # EBM's mined steps redone on it solved 70 against 71 % (+17 / -18; "Image size").
     mining_coarse=CoarseRanking(stride=12, keep=32),

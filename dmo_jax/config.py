@@ -327,7 +327,7 @@ PAPER = Preset(name="paper", image_size=256)
 CPU = Preset(
     name="cpu",
     # 96 px: 0.9 cm per pixel on the table, where success needs about 1 cm (1.3 cm at 64 px). On
-    # eight tasks x 300 test scenes the DMO solved 88.7 % against 83.0 % at 64 px (BENCHMARKS.md,
+    # the nine tasks x 300 test scenes the DMO solved 89.9 % against 84.9 % at 64 px (BENCHMARKS.md,
     # "Image size"). Its training took 15.6-16.8 minutes a task instead of 12.6; the coarser
     # mining ranking below and held-out evaluation at the end of each run only bring it to 14.1
     # (reach_target). The DMO's samples are not where to save: a DMO of 400

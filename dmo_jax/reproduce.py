@@ -124,7 +124,7 @@ def _record(result: dict, run: Run, preset: Preset) -> dict:
 
 def _settings(run: Run, preset: Preset) -> dict:
     """What the rows of ``run`` on ``preset`` are made with (``comparison.row_label`` names them by it;
-    rows of files older than ``image_size`` were made at 64², the ``cpu`` preset's size then)."""
+    rows of older files, which record no ``image_size``, differ from it and are remade)."""
     from .training import mined_steps
 
     if run.recipe is None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from .config import HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
+from .config import IMAGE_SIZE_BEFORE, HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
 
 # Two-stage bank scorings (stride, keep) that chose the same motions, and so solved the same
 # scenes, as the full scoring in all 2,700 test scenes of the nine tasks (BENCHMARKS.md,
@@ -33,7 +33,9 @@ def row_label(result: dict, settings: dict) -> str:
     the bank where its recipe's is not, or the reverse (``(mined negatives)``, ``(no mined negatives)``),
     another architecture ``(wo_concat)`` or EBM
     negatives ``(only-vae negatives)``, networks of a recipe other than the paper's
-    ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``."""
+    ``[recipe]``, and networks trained with other settings (``--set``) ``{field=value, ...}``,
+    which always name the image size where it is known (recorded, set, or the size a file's preset
+    had before sizes were recorded), so that rows of networks of two sizes never share a label."""
     if "n" not in result:  # a world method (expert, blind, nearest)
         return result["method"]
     label = f"{result['method']} n={result['n']}" + ("" if result["R"] is None else f" R={result['R']}")
@@ -57,8 +59,11 @@ def row_label(result: dict, settings: dict) -> str:
     label += "" if variant == "concat" else f" ({variant})"
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     label += "" if recipe == "paper" else f" [{recipe}]"
-    overrides = sorted(item for item in items
-                       if not item.startswith(("dmo_inputs=", "depth_cue=", "ebm_mined_steps=")))
+    overrides = [item for item in items
+                 if not item.startswith(("dmo_inputs=", "depth_cue=", "ebm_mined_steps=", "image_size="))]
+    sizes = [item.partition("=")[2] for item in items if item.startswith("image_size=")]
+    size = settings.get("image_size") or (sizes[-1] if sizes else IMAGE_SIZE_BEFORE.get(settings.get("preset")))
+    overrides = sorted(overrides + ([f"image_size={size}"] if size else []))
     return label + (f" {{{', '.join(overrides)}}}" if overrides else "")
 
 

@@ -321,6 +321,9 @@ def override_label(item: str) -> str:
     return f"{name}={text}" if _override_target(name) == (section, name) else item
 
 
+#: The image size each preset had before checkpoints and results files recorded it (``cpu`` is now 96).
+IMAGE_SIZE_BEFORE = {"tiny": 32, "cpu": 64, "paper": 256}
+
 PAPER = Preset(name="paper", image_size=256)
 
 # cpu: the default, sized for a 2-core laptop CPU at 96 px.

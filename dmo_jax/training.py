@@ -29,7 +29,7 @@ from jax.sharding import PartitionSpec as P
 from envs.progress import Progress
 
 from . import losses, run_metrics
-from .config import Preset, TrainConfig
+from .config import IMAGE_SIZE_BEFORE, Preset, TrainConfig
 from .data import MotionDataset, augment_batch
 from .networks import DMONet, EBMNet
 from .vae import VAENet
@@ -300,9 +300,6 @@ _META_BEFORE = {"depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0
                 "inputs": "decoded"}
 
 
-#: The image size of each preset's checkpoints made before it was recorded (``cpu`` is now 96).
-_IMAGE_SIZE_BEFORE = {"tiny": 32, "cpu": 64, "paper": 256}
-
 #: Meta fields older checkpoints lack with no one value they were made with (their preset's): not checked there.
 _META_UNKNOWN_BEFORE = ("negative_counts", "task")
 
@@ -329,8 +326,8 @@ def _without_removed_settings(saved: dict, path: Path) -> dict:
 
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
     saved = {**_META_BEFORE, **_without_removed_settings(saved, path)}
-    if "image_size" not in saved and saved.get("preset") in _IMAGE_SIZE_BEFORE:
-        saved["image_size"] = _IMAGE_SIZE_BEFORE[saved["preset"]]
+    if "image_size" not in saved and saved.get("preset") in IMAGE_SIZE_BEFORE:
+        saved["image_size"] = IMAGE_SIZE_BEFORE[saved["preset"]]
     diff = {k: (saved.get(k), v) for k, v in expected.items()
             if saved.get(k) != v and not (k in _META_UNKNOWN_BEFORE and k not in saved)}
     if diff:

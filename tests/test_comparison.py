@@ -120,6 +120,13 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     assert row_label({**dmo, "coarse": [6, 64]}, bank) == row_label({**dmo, "coarse": [4, 64]}, bank) == \
         row_label({**dmo, "coarse": None}, bank) == "dmo n=8 R=1 [bank]"
     assert row_label({**dmo, "coarse": [8, 64]}, bank) == "dmo n=8 R=1 (coarse 8/64) [bank]"
+    # networks of two image sizes never share a row: the size is recorded, set, or (files older
+    # than the field) the one the file's preset had then
+    sized = row_label(dmo, {**bank, "preset": "cpu", "image_size": 96, "set": ["dmo_batch=12"]})
+    assert sized == "dmo n=8 R=1 [bank] {dmo_batch=12, image_size=96}"
+    assert row_label(dmo, {**bank, "preset": "cpu", "set": ["dmo_batch=12", "preset.image_size=96"]}) == sized
+    assert row_label(dmo, {**bank, "preset": "cpu", "set": ["dmo_batch=12"]}) == \
+        "dmo n=8 R=1 [bank] {dmo_batch=12, image_size=64}"
 
 
 def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, capsys):

@@ -40,7 +40,8 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     table = proc.stdout.splitlines()
     assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
     # sort ignores R: one row, not one per R
-    assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0", "sort n=2", "dmo n=2 R=2"]
+    assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0 {image_size=32}", "sort n=2 {image_size=32}",
+                                                         "dmo n=2 R=2 {image_size=32}"]
     payload = json.loads(out.read_text())
     assert payload["settings"]["method"] == ["dmo", "sort"] and payload["settings"]["preset"] == "tiny"
     assert [(r["method"], r["task"], r["n"], r["R"], r["episodes"]) for r in payload["results"]] == [
@@ -163,7 +164,8 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
     proc = _run("bin/evaluate", "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
                 "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend", "mujoco",
                 "--json", str(out))
-    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == ["sort n=2 [bank]", "dmo n=2 R=1 [bank]"]
+    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == ["sort n=2 [bank] {image_size=32}",
+                                                                           "dmo n=2 R=1 [bank] {image_size=32}"]
     payload = json.loads(out.read_text())
     assert payload["settings"]["recipe"] == "bank"
     dmo = next(r for r in payload["results"] if r["method"] == "dmo")

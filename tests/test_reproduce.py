@@ -94,7 +94,7 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
     assert len(rows) == 3 and all(set(per_task) == {TASK} for per_task in rows.values())
     section = report.read_text().split("<!-- table5 -->")[1].split("<!-- /table5 -->")[0]
     assert "| method | CB | PC | PB |" in section and "paper R=1, n=1000" in section
-    assert "dmo n=8 R=1 |" in section and "preset `tiny`" in section
+    assert "dmo n=8 R=1 {image_size=32} |" in section and "preset `tiny`" in section
     before = path.read_bytes()
     second = _run(*args)
     assert second.returncode == 0, second.stderr

@@ -115,7 +115,8 @@ def main(argv: list[str] | None = None) -> None:
     networks = {"variant": preset.variant, "recipe": preset.recipe, "dmo_inputs": preset.train.dmo_inputs,
                 "depth_cue": preset.head.depth_cue, "negatives": args.negatives,
                 "ebm_mined_steps": training.mined_steps(preset.train, args.negatives),
-                "dmo_train_steps": args.dmo_train_steps, "set": args.set}  # what the rows are named by
+                "dmo_train_steps": args.dmo_train_steps, "image_size": preset.image_size,
+                "set": args.set}  # what the rows are named by
     by_row = {}  # row label ("dmo n=8 R=1") -> {task: result}, rows in the order they appear
     for name in names:
         try:

@@ -154,12 +154,30 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     return out
 
 
+def candidate_outcomes(success: np.ndarray, is_start: np.ndarray, energies: np.ndarray) -> dict:
+    """What a method's choice among its ranked candidates costs: given the ``success [E, K]`` of
+    each candidate executed alone (``envs.evaluation.run_each_candidate``), which of them are
+    bank motions (``is_start [E, K]``) and their ``energies [E, K]``,
+    ``some_candidate_solves`` / ``some_start_solves``, the fraction of scenes one of the candidates
+    (of the starts) solves; ``start_success_rate`` / ``optimised_success_rate``, the mean success of
+    a start and of an optimised motion; and the per-scene arrays, for other selection rules."""
+    success, is_start = np.asarray(success, bool), np.asarray(is_start, bool)
+    out = {"some_candidate_solves": round(float(success.any(axis=1).mean()), 4),
+           "some_start_solves": round(float((success & is_start).any(axis=1).mean()), 4),
+           "start_success_rate": round(float(success[is_start].mean()), 4)}
+    if (~is_start).any():
+        out["optimised_success_rate"] = round(float(success[~is_start].mean()), 4)
+    return {**out, "candidate_success": success.astype(int).tolist(),
+            "candidate_is_start": is_start.astype(int).tolist(),
+            "candidate_energies": np.round(np.asarray(energies, np.float64), 4).tolist()}
+
+
 def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
                      settings: Sequence[tuple[int, int]] = ((8, 1),), episodes: int | None = None,
                      backend: str = "auto",
                      negatives: str = "in-data+vae", dmo_train_steps: int | None = None, seed: int = 0,
                      viz_dir=None, coarse: CoarseRanking | None | str = "preset",
-                     measure_recall: bool = False) -> list[dict]:
+                     measure_recall: bool = False, each_candidate: bool = False) -> list[dict]:
     """Predict with each of ``methods`` at each ``(n, R)`` of ``settings`` on the first
     ``episodes`` test images of a task (the bank scored once for all) and execute.
 
@@ -169,7 +187,8 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
     the bank scoring used (``coarse`` as in :func:`~dmo_jax.inference.predict`; ``[stride,
     keep]`` or None). With ``measure_recall`` and a coarse scoring the bank is also scored in
     full, untimed, for ``coarse_recall`` (:func:`coarse_recall`, mean over the scenes) and
-    ``full_bank_seconds``.
+    ``full_bank_seconds``. With ``each_candidate`` every one of a result's K ranked candidates is
+    also executed alone (K times the execution), for :func:`candidate_outcomes`.
     """
     from envs import evaluation
     from envs.dataset import DatasetError, load_split
@@ -208,6 +227,9 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
             save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
         diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
                                          preset.image_size, (test.meta["camera_position"], test.meta["camera_rotation"]))
+        if each_candidate:
+            diagnostics.update(candidate_outcomes(evaluation.run_each_candidate(task_name, test, cands, backend),
+                                                  _among(cands, starts[:, :n]), energies))
         results.append({"method": method, "n": n, "R": R, **result,
                         "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics,
                         **extra})

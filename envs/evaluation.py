@@ -52,6 +52,21 @@ def execute_candidates(task, scenes, candidates: np.ndarray, backend: str = "aut
     return {"success": success, "candidate": used, "abandoned": abandoned}
 
 
+def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: str = "auto") -> np.ndarray:
+    """Success ``[E, K]`` (bool) of each of the ``candidates [E, K, 101, 11]`` executed alone, with
+    no fallback, on the first ``E`` test scenes of task ``name``: which of a method's candidates
+    would have solved each scene, had it been chosen."""
+    from envs.tasks import get_task
+
+    candidates = np.asarray(candidates, np.float32)
+    if candidates.ndim != 4:
+        raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")
+    task = get_task(name, test.meta["image_size"])
+    scenes = [task.reset(int(s)) for s in test.seeds[:len(candidates)]]
+    return np.stack([execution.execute(task.world, candidates[:, k], task.batch(scenes), task.success, backend).success
+                     for k in range(candidates.shape[1])], axis=1).astype(bool)
+
+
 def blind_motion(train: Split) -> np.ndarray:
     """The training motion closest (squared error) to the mean training motion, ``[101, 11]``."""
     motions = np.asarray(train.motions, np.float64)

@@ -36,7 +36,7 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     out = tmp_path / "r.json"
     proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
                 "--workdir", str(work), "--episodes", "2", "--n", "2", "--sweep", "R=0,2", "--backend", "mujoco",
-                "--json", str(out), "--save-viz", str(tmp_path / "viz"))
+                "--json", str(out), "--save-viz", str(tmp_path / "viz"), "--each-candidate")
     table = proc.stdout.splitlines()
     assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
     # sort ignores R: one row, not one per R
@@ -52,6 +52,12 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     for r in payload["results"]:
         assert r["successes"] == sum(r["episode_success"]) and r["success_rate"] == r["successes"] / 2
         assert all(0 <= c < 2 for c in r["candidate_used"])
+        # every candidate executed alone: the one execution used agrees, and the starts are marked
+        k = 2 * (r["R"] + 1) if r["method"] == "dmo" else 2
+        assert [len(row) for row in r["candidate_success"]] == [len(row) for row in r["candidate_energies"]] == [k, k]
+        assert [row[c] for row, c in zip(r["candidate_success"], r["candidate_used"])] == r["episode_success"]
+        assert [sum(row) for row in r["candidate_is_start"]] == [2, 2]
+        assert r["some_candidate_solves"] >= max(r["success_rate"], r["some_start_solves"])
     assert payload["task"] == TASK and payload["episodes"] == 6
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
     pngs, mp4s = sorted((tmp_path / "viz").glob(f"{TASK}_*.png")), sorted((tmp_path / "viz").glob("*.mp4"))

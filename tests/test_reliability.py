@@ -237,6 +237,7 @@ COMMAND_CASES = [
     _case("evaluate", EV + ["--coarse", "4"], "--coarse must be STRIDE,KEEP (e.g. 6,64) or full, got '4'"),
     _case("evaluate", EV + ["--coarse", "0,64"], "--coarse 0,64: STRIDE and KEEP must be positive"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--coarse", "4,64"], "--coarse needs a learned method"),
+    _case("evaluate", ["--task", TASK, "--method", "nearest", "--each-candidate"], "--each-candidate needs a learned method"),
     _case("evaluate", ["--task", TASK, "--method", "expert", "--sweep", "n=1"], "--sweep needs learned methods only, not expert"),
     _case("evaluate", EV + ["--json", "{missing}/r.json"], "does not exist"),
     _case("evaluate", EV + ["--json", "{unwritable}/r.json"], "is not writable"),

@@ -56,6 +56,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--coarse-recall", action="store_true",
                         help="also score the bank in full, untimed, and report how many of its top n the coarse "
                         "scoring kept (coarse_recall)")
+    parser.add_argument("--each-candidate", action="store_true",
+                        help="also execute every ranked candidate alone (K times the execution) and report how many "
+                        "scenes some candidate solves, and how often a start and an optimised motion succeed "
+                        "(with --json: the success of each, for other selection rules)")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
     parser.add_argument("--save-viz", metavar="DIR", help="per episode (the first 10): a trajectories figure (PNG) and a rollout video (MP4)")
     args = parser.parse_args(argv)
@@ -78,6 +82,8 @@ def main(argv: list[str] | None = None) -> None:
         sweep, coarse = parse_sweep(args.sweep), parse_coarse(args.coarse)
     except ValueError as err:
         fail(str(err))
+    if args.each_candidate and not learned:
+        fail("--each-candidate needs a learned method (the others execute one motion per scene)")
     if (args.coarse or args.coarse_recall) and not learned:
         fail(f"--{'coarse' if args.coarse else 'coarse-recall'} needs a learned method (it is about how the EBM "
              "scores the bank)")
@@ -127,7 +133,7 @@ def main(argv: list[str] | None = None) -> None:
                     name, learned, preset=preset, workdir=args.workdir, data_root=data, settings=settings,
                     episodes=args.episodes, backend=args.backend, negatives=args.negatives,
                     dmo_train_steps=args.dmo_train_steps, seed=args.seed, viz_dir=args.save_viz, coarse=coarse,
-                    measure_recall=args.coarse_recall)
+                    measure_recall=args.coarse_recall, each_candidate=args.each_candidate)
         except (DatasetError, training.TrainingError, ValueError) as err:
             fail(str(err))
         for result in found:
@@ -148,7 +154,13 @@ def main(argv: list[str] | None = None) -> None:
                          if "mean_optimised_error_m" in result else "")
                      + (f"; the coarse scoring kept {result['coarse_recall']:.0%} of the full one's top "
                         f"{result['n']} in {result['bank_seconds']:.1f} s, against {result['full_bank_seconds']:.1f} s"
-                        if "coarse_recall" in result else "") + ")"
+                        if "coarse_recall" in result else "")
+                     + (f"; executed alone, a start succeeds in {result['start_success_rate']:.0%} of cases"
+                        + (f", an optimised motion in {result['optimised_success_rate']:.0%}"
+                           if "optimised_success_rate" in result else "")
+                        + f", and some candidate solves {result['some_candidate_solves']:.0%} of the scenes "
+                        f"(some start {result['some_start_solves']:.0%})" if "some_candidate_solves" in result else "")
+                     + ")"
                      if "predict_seconds" in result else ")"),
                   file=sys.stderr)
     rows = [(label, {t: r["success_rate"] for t, r in per_task.items()}) for label, per_task in by_row.items()]

@@ -125,6 +125,40 @@ def load_distances(paths) -> dict[str, dict[str, tuple[float, float]]]:
     return out
 
 
+def load_choices(paths) -> dict[str, dict[str, dict]]:
+    """``{row: {task: result}}`` for the rows whose candidates were each executed alone
+    (``bin/evaluate --each-candidate``: ``some_candidate_solves`` and the rest of
+    ``evaluation.candidate_outcomes``)."""
+    out: dict[str, dict[str, dict]] = {}
+    for _, label, result in _labelled_results(paths):
+        if "some_candidate_solves" in result:
+            out.setdefault(label, {})[result["task"]] = result
+    return out
+
+
+def choice_table(choices: dict[str, dict[str, dict]]) -> str:
+    """Markdown: per row and task (:func:`load_choices`), the success of the chosen motions, of the
+    best start and of the best candidate (each executed alone) in %, then how often a start and an
+    optimised motion succeed alone: what the choice among the candidates costs."""
+    from envs.evaluation import ABBREVIATIONS, TASK_ORDER
+
+    tasks = [t for t in TASK_ORDER if any(t in per_task for per_task in choices.values())]
+    head = " | ".join(ABBREVIATIONS[t] for t in tasks)
+    rule = "|---" * (len(tasks) + 1) + "|"
+    pct = lambda x: f"{100 * x:.0f}"  # noqa: E731
+    chosen = ["| chosen / best start / best candidate, % | " + head + " |", rule]
+    alone = ["| a start / an optimised motion succeeds alone, % | " + head + " |", rule]
+    for label, per_task in choices.items():
+        rs = [per_task.get(t) for t in tasks]
+        chosen.append(f"| {label} | " + " | ".join(
+            "–" if r is None else f"{pct(r['success_rate'])} / {pct(r['some_start_solves'])} / "
+            f"{pct(r['some_candidate_solves'])}" for r in rs) + " |")
+        alone.append(f"| {label} | " + " | ".join(
+            "–" if r is None else pct(r["start_success_rate"]) + (
+                f" / {pct(r['optimised_success_rate'])}" if "optimised_success_rate" in r else "") for r in rs) + " |")
+    return "\n".join(chosen) + "\n\n" + "\n".join(alone)
+
+
 def select_rows(rows: Rows, labels: list[str]) -> Rows:
     """``rows`` restricted to ``labels``, in that order."""
     missing = [label for label in labels if label not in rows]

@@ -137,3 +137,16 @@ def test_distances_of_the_first_ranked_motions_are_tabled_per_row(tmp_path, caps
     compare.main([str(path)])
     table = capsys.readouterr().out.split("first-ranked motion's distance")[1]
     assert "| dmo n=8 R=1 | 1.2 (0.4) |" in table and "sort" not in table  # sort has no distances here
+
+
+def test_what_the_choice_among_candidates_costs_is_tabled_per_row(tmp_path, capsys):
+    path = _evaluation(tmp_path / "a.json", [("dmo", "reach_target", [1, 0]), ("sort", "reach_target", [0, 0])])
+    payload = json.loads(path.read_text())  # bin/evaluate --each-candidate
+    payload["results"][0].update(some_candidate_solves=1.0, some_start_solves=0.5, start_success_rate=0.25,
+                                 optimised_success_rate=0.5)
+    path.write_text(json.dumps(payload))
+    compare.main([str(path)])
+    out = capsys.readouterr().out
+    chosen, alone = out.split("| chosen / best start / best candidate, % | RT |")[1].split("succeeds alone")
+    assert "| dmo n=8 R=1 | 50 / 50 / 100 |" in chosen and "| dmo n=8 R=1 | 25 / 50 |" in alone
+    assert "sort" not in chosen + alone  # sort's candidates were not executed alone here

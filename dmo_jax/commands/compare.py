@@ -25,7 +25,8 @@ def main(argv: list[str] | None = None) -> None:
     if not 0 < args.alpha < 1:
         fail(f"--alpha must lie between 0 and 1, got {args.alpha}")
 
-    from dmo_jax.comparison import comparison_report, distance_table, load_distances, load_evaluations, select_rows
+    from dmo_jax.comparison import (choice_table, comparison_report, distance_table, load_choices, load_distances,
+                                    load_evaluations, select_rows)
 
     try:
         rows = load_evaluations(args.files)
@@ -36,5 +37,8 @@ def main(argv: list[str] | None = None) -> None:
         distances = {label: d for label, d in load_distances(args.files).items() if label in rows}
         if distances:
             print("\n" + distance_table(distances))
+        choices = {label: c for label, c in load_choices(args.files).items() if label in rows}
+        if choices:
+            print("\n" + choice_table(choices))
     except ValueError as err:
         fail(str(err))

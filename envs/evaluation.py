@@ -3,10 +3,11 @@
 Methods that need no learned model live here: ``expert`` replays the test split's recorded
 motions; ``blind`` executes, on every test scene, the one training motion closest to the
 mean training motion (a motion that ignores the image); ``nearest`` is an oracle that reads
-the answer: the training motion closest to the scene's recorded motion, the best a method that
-only ranks the bank could pick. Learned methods hand their ranked
-candidates to :func:`execute_candidates`, which falls back to the next candidate when one
-is abandoned (more than 10 unreachable waypoints), as the paper's evaluator does.
+the answer: the training motion closest to the scene's recorded motion (closest in position,
+which is not always the one that succeeds). Learned methods hand their ranked candidates to
+:func:`execute_candidates`, which falls back to the next candidate when one is abandoned (more
+than 10 unreachable waypoints), as the paper's evaluator does; :func:`run_each_candidate`
+executes each of them alone, to measure what choosing among them costs.
 """
 from __future__ import annotations
 

@@ -111,7 +111,7 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
     proc = _run("bin/evaluate", "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data",
                 str(data), "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco",
                 "--json", str(out))
-    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [f"{m} n=2" for m in methods]
+    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [f"{m} n=2 {{image_size=32}}" for m in methods]
     payload = json.loads(out.read_text())
     assert payload["method"] == methods and [r["method"] for r in payload["results"]] == methods
     for r in payload["results"]:

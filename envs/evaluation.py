@@ -53,17 +53,22 @@ def execute_candidates(task, scenes, candidates: np.ndarray, backend: str = "aut
     return {"success": success, "candidate": used, "abandoned": abandoned}
 
 
+def rebuild_scenes(name: str, test: Split, episodes: int):
+    """Task ``name`` and its first ``episodes`` test scenes, rebuilt from their seeds."""
+    from envs.tasks import get_task
+
+    task = get_task(name, test.meta["image_size"])
+    return task, [task.reset(int(s)) for s in test.seeds[:episodes]]
+
+
 def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: str = "auto") -> np.ndarray:
     """Success ``[E, K]`` (bool) of each of the ``candidates [E, K, 101, 11]`` executed alone, with
     no fallback, on the first ``E`` test scenes of task ``name``: which of a method's candidates
     would have solved each scene, had it been chosen."""
-    from envs.tasks import get_task
-
     candidates = np.asarray(candidates, np.float32)
     if candidates.ndim != 4:
         raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")
-    task = get_task(name, test.meta["image_size"])
-    scenes = [task.reset(int(s)) for s in test.seeds[:len(candidates)]]
+    task, scenes = rebuild_scenes(name, test, len(candidates))
     return np.stack([execution.execute(task.world, candidates[:, k], task.batch(scenes), task.success, backend).success
                      for k in range(candidates.shape[1])], axis=1).astype(bool)
 
@@ -138,11 +143,8 @@ def run_episodes(name: str, test: Split, candidates: np.ndarray, backend: str = 
     "successes", "success_rate", "seconds", "episode_success", "candidate_used"}``."""
     import time
 
-    from envs.tasks import get_task
-
     episodes = len(candidates)
-    task = get_task(name, test.meta["image_size"])
-    scenes = [task.reset(int(s)) for s in test.seeds[:episodes]]
+    task, scenes = rebuild_scenes(name, test, episodes)
     start = time.perf_counter()
     out = execute_candidates(task, scenes, candidates, backend)
     successes = int(out["success"].sum())

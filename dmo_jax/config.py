@@ -130,11 +130,6 @@ class TrainConfig:
     # distance: the rivals it does confuse, such as put_knife's motions that visit the knife and the
     # board in the reverse order, which no motion near the positive resembles.
     ebm_mined_steps: int = 0
-    # Not in the paper (0 = off; needs ebm_mined_steps and ebm_target_scale): before its mined steps
-    # each training image's this many lowest-energy rivals (of its near_pool) are executed in that
-    # image's scene, and the graded target gives a rival that succeeds the positive's share and one that
-    # fails none, so the energies order the bank's top by what succeeds rather than by what lies close.
-    ebm_executed_rivals: int = 0
     dmo_steps: int = 100_000
     dmo_batch: int = 16
     dmo_train_steps: int = 5  # R during training, refinements unrolled per optimiser step ("Ours-5"; --dmo-train-steps)
@@ -154,7 +149,7 @@ class TrainConfig:
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
             # counts and sizes are positive; the counts of extras may be 0
             if isinstance(value, (int, float)) and not isinstance(value, bool):
-                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup", "_mined_steps", "_rivals")) else 1
+                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup", "_mined_steps")) else 1
                 if value < low:
                     raise ValueError(f"{f.name} must be {'>= 0' if low == 0 else 'positive'}, got {value}")
         if self.ebm_target_scale < 0:
@@ -168,12 +163,6 @@ class TrainConfig:
         if self.ebm_near_negatives > self.ebm_gt_negatives:
             raise ValueError(f"ebm_near_negatives={self.ebm_near_negatives} exceeds ebm_gt_negatives="
                              f"{self.ebm_gt_negatives}: the near negatives are part of the in-data ones")
-        if self.ebm_executed_rivals > self.near_pool:
-            raise ValueError(f"ebm_executed_rivals={self.ebm_executed_rivals} exceeds near_pool={self.near_pool}: "
-                             "they are the first of each image's mined rivals")
-        if self.ebm_executed_rivals and not (self.ebm_mined_steps and self.ebm_target_scale):
-            raise ValueError(f"ebm_executed_rivals={self.ebm_executed_rivals} needs ebm_mined_steps > 0 and "
-                             "ebm_target_scale > 0: it labels the mined rivals for the graded target")
         if self.ebm_near_negatives > self.near_pool:
             raise ValueError(f"ebm_near_negatives={self.ebm_near_negatives} exceeds near_pool={self.near_pool}: "
                              "they are drawn without replacement from that many nearest motions")
@@ -204,8 +193,7 @@ BANK_MINED_FRACTION = 0.4
 def recipe_settings(recipe: str, train: TrainConfig) -> dict:
     """The :class:`TrainConfig` fields ``recipe`` sets, for a preset training with ``train``."""
     if recipe == "paper":
-        return {"ebm_near_negatives": 0, "ebm_target_scale": 0.0, "ebm_mined_steps": 0, "ebm_executed_rivals": 0,
-                "dmo_inputs": "decoded"}
+        return {"ebm_near_negatives": 0, "ebm_target_scale": 0.0, "ebm_mined_steps": 0, "dmo_inputs": "decoded"}
     if recipe == "bank":
         near = (train.ebm_gt_negatives + 1) // 2
         return {"ebm_near_negatives": near, "near_pool": max(16, near), "ebm_target_scale": BANK_TARGET_SCALE,

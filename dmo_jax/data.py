@@ -103,14 +103,11 @@ class MotionDataset:
     """A task split in memory: ``images [N, S, S, 4]`` float32, ``motions [N, 101, 11]`` float32,
     and optionally ``neighbours [N, K]`` int32, the indices of each motion's nearest training
     motions, nearest first (``dmo_jax.neighbours``; for the training split the *other* training
-    motions, which :meth:`batch` with ``near`` needs), and optionally ``neighbour_outcomes [N, K]``
-    int8, what each of those motions did when executed in this motion's scene: 1 succeeded, 0
-    failed, -1 not executed (``dmo_jax.mining``)."""
+    motions, which :meth:`batch` with ``near`` needs)."""
 
     images: np.ndarray
     motions: np.ndarray
     neighbours: np.ndarray | None = None
-    neighbour_outcomes: np.ndarray | None = None
 
     @classmethod
     def from_split(cls, split) -> "MotionDataset":
@@ -123,8 +120,7 @@ class MotionDataset:
         """The batch of ``step``: a pure function of (seed, step, process), so a resumed run
         sees exactly the batches an uninterrupted one would. Sampled without replacement
         within the batch (an image's negatives are the *other* images' motions). ``near`` > 0
-        adds ``near [size, near, 101, 11]``: each motion's ``near`` nearest other motions, and with
-        ``neighbour_outcomes`` their outcomes in its scene, ``near_outcomes [size, near]``."""
+        adds ``near [size, near, 101, 11]``: each motion's ``near`` nearest other motions."""
         if size > len(self):
             raise ValueError(f"batch size {size} exceeds the dataset's {len(self)} episodes")
         rng = np.random.default_rng([seed, step, process])
@@ -136,8 +132,6 @@ class MotionDataset:
                 raise ValueError(f"batches with {near} nearest motions need the dataset's neighbours "
                                  f"(dmo_jax.neighbours), {have} per motion here")
             batch["near"] = self.motions[self.neighbours[idx, :near]]
-            if self.neighbour_outcomes is not None:
-                batch["near_outcomes"] = self.neighbour_outcomes[idx, :near]
         return batch
 
     def statistics(self) -> dict:

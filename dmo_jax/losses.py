@@ -75,7 +75,9 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
         if near is None or near.shape[1] < n_near:
             raise ValueError(f"{n_near} near negatives need each positive's nearest motions (near [B, P >= "
                              f"{n_near}, 101, 11]), got {None if near is None else near.shape}")
-        pick = _near_pick(key, near.shape[:2], n_near)
+        # a key of their own, so the random in-data and VAE negatives keep theirs
+        k_near = jax.random.fold_in(key, 5)
+        pick = jnp.argsort(jax.random.uniform(k_near, near.shape[:2]), axis=1)[:, :n_near]
         parts.append(jnp.take_along_axis(near, pick[:, :, None, None], axis=1))
     if n_gt - n_near:
         if b < 2:
@@ -88,40 +90,13 @@ def ebm_candidates(vae, vae_params, motions, key, cfg: TrainConfig, negatives: s
     return jax.lax.stop_gradient(jnp.concatenate(parts, axis=1))
 
 
-def _near_pick(key, pool_shape: tuple[int, int], n_near: int) -> jnp.ndarray:
-    """``[B, n_near]``: which of each positive's ``pool_shape[1]`` near motions become its near
-    negatives, without replacement; a key of their own, so the random in-data and VAE negatives
-    keep theirs."""
-    return jnp.argsort(jax.random.uniform(jax.random.fold_in(key, 5), pool_shape), axis=1)[:, :n_near]
-
-
-def candidate_outcomes(key, near_outcomes, num_candidates: int, cfg: TrainConfig,
-                       negatives: str = "in-data+vae") -> jnp.ndarray:
-    """``int8 [B, num_candidates]``: the outcome in each positive's scene of the candidates
-    :func:`ebm_candidates` draws with the same ``key``: 1 for the positive (index 0), the near
-    negatives' entries of ``near_outcomes [B, P]`` (1 succeeded, 0 failed, -1 not executed), -1 for
-    the random and VAE negatives."""
-    b, pool = near_outcomes.shape
-    n_near = cfg.ebm_near_negatives if negatives == "in-data+vae" and cfg.ebm_gt_negatives else 0
-    parts = [jnp.ones((b, 1), jnp.int8)]
-    if n_near:
-        parts.append(jnp.take_along_axis(jnp.asarray(near_outcomes, jnp.int8), _near_pick(key, (b, pool), n_near), 1))
-    parts.append(jnp.full((b, num_candidates - 1 - n_near), -1, jnp.int8))
-    return jnp.concatenate(parts, axis=1)
-
-
-def graded_targets(candidates, intrinsics, image_size: int, scale: float, outcomes=None) -> jnp.ndarray:
+def graded_targets(candidates, intrinsics, image_size: int, scale: float) -> jnp.ndarray:
     """``[B, 1 + K]`` target distribution over ``candidates [B, 1 + K, 101, 11]``:
     softmax(-d / ``scale``), d each candidate's mean 3-D pose distance (metres) from the
-    positive (index 0). A candidate ``scale`` farther than another gets e times less mass.
-    ``outcomes [B, 1 + K]`` (:func:`candidate_outcomes`): a candidate that succeeded in the scene
-    counts as the positive (d = 0) and one that failed gets no mass, however close it lies."""
+    positive (index 0). A candidate ``scale`` farther than another gets e times less mass."""
     pos = camera_positions(candidates, intrinsics, image_size)
     dist = jnp.mean(jnp.linalg.norm(pos - pos[:, :1], axis=-1), axis=-1)
-    logits = -dist / scale
-    if outcomes is not None:
-        logits = jnp.where(outcomes == 1, 0.0, jnp.where(outcomes == 0, -jnp.inf, logits))
-    return jax.nn.softmax(logits, axis=-1)
+    return jax.nn.softmax(-dist / scale, axis=-1)
 
 
 def ebm_loss(ebm, params, images, candidates, key, targets=None):

@@ -7,17 +7,11 @@ positive's, so neither the nearest-motion negatives (``dmo_jax.neighbours``) nor
 show them to the EBM. With ``TrainConfig.ebm_mined_steps`` the EBM, once trained for its
 ``ebm_steps``, ranks the bank for every training image as :func:`~dmo_jax.inference.predict`
 does (with the preset's ``mining_coarse`` scoring where it has one) and trains on, drawing its
-near negatives from that ranking. With ``TrainConfig.ebm_executed_rivals`` = L the first L of each image's
-rivals are also executed in that image's scene (:func:`rival_outcomes`), and the mined steps'
-graded target counts a rival that succeeded as the positive and one that failed as wrong: the
-EBM's first choice among its top 8 solves fewer scenes than the best of them, because lying close
-to the demonstration is not the same as succeeding. The ranking is stored beside the EBM's
-checkpoints, so a resumed run trains on the same table::
+near negatives from that ranking. The ranking is stored beside the EBM's checkpoints, so a
+resumed run trains on the same table::
 
-    mined.npy           int32 [N, K]  per training image, its K lowest-energy *other* training motions
-    mined_outcomes.npy  bool [N, L]   whether each of the first L succeeded in the image's scene
-    mined.json          {k, fingerprint, step, executed}: the training motions, K, the EBM's step
-                        it was made at, and L (0: no outcomes)
+    mined.npy    int32 [N, K]   per training image, its K lowest-energy *other* training motions
+    mined.json   {k, fingerprint, step}: the training motions, K and the EBM's step it was made at
 """
 from __future__ import annotations
 
@@ -36,7 +30,7 @@ from .data import MotionDataset, motions_fingerprint
 from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk
 from .networks import EBMNet
 
-INDEX_FILE, OUTCOME_FILE, INFO_FILE = "mined.npy", "mined_outcomes.npy", "mined.json"
+INDEX_FILE, INFO_FILE = "mined.npy", "mined.json"
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "k", "chunk", "coarse"))
@@ -71,70 +65,26 @@ def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, ba
     return top[keep].reshape(n, k).astype(np.int32)
 
 
-def _stored_info(run_dir: Path, dataset: MotionDataset) -> dict | None:
-    try:
-        info = json.loads((run_dir / INFO_FILE).read_text())
-    except (FileNotFoundError, ValueError):
-        return None
-    return info if isinstance(info, dict) and info.get("fingerprint") == motions_fingerprint(dataset.motions) else None
-
-
 def stored_rivals(run_dir: Path, dataset: MotionDataset, k: int) -> np.ndarray | None:
     """The table :func:`store_rivals` wrote in ``run_dir`` for these training motions and ``k``,
     else None."""
-    info = _stored_info(run_dir, dataset)
-    if info is None or info.get("k") != k:
-        return None
     try:
+        info = json.loads((run_dir / INFO_FILE).read_text())
         table = np.load(run_dir / INDEX_FILE)
     except (FileNotFoundError, ValueError):
         return None
-    return table if table.shape == (len(dataset), k) else None
-
-
-def stored_outcomes(run_dir: Path, dataset: MotionDataset, executed: int) -> np.ndarray | None:
-    """The outcomes ``bool [N, executed]`` :func:`store_rivals` wrote in ``run_dir`` for these training
-    motions, else None."""
-    info = _stored_info(run_dir, dataset)
-    if info is None or info.get("executed") != executed:
+    if info.get("k") != k or info.get("fingerprint") != motions_fingerprint(dataset.motions) \
+            or table.shape != (len(dataset), k):
         return None
-    try:
-        outcomes = np.load(run_dir / OUTCOME_FILE)
-    except (FileNotFoundError, ValueError):
-        return None
-    return outcomes if outcomes.shape == (len(dataset), executed) and outcomes.dtype == bool else None
+    return table
 
 
-def store_rivals(run_dir: Path, table: np.ndarray, dataset: MotionDataset, step: int,
-                 outcomes: np.ndarray | None = None) -> None:
-    """Write ``table`` (and the ``outcomes [N, L]`` of its first L columns) atomically, the info
-    file last (a crash leaves no info file that matches a half-written table)."""
+def store_rivals(run_dir: Path, table: np.ndarray, dataset: MotionDataset, step: int) -> None:
+    """Write ``table`` atomically, the index file first (a crash leaves no info file that
+    matches a half-written table)."""
     from envs.dataset import atomic_save, atomic_write_text
 
     (run_dir / INFO_FILE).unlink(missing_ok=True)
     atomic_save(run_dir / INDEX_FILE, table)
-    if outcomes is not None:
-        atomic_save(run_dir / OUTCOME_FILE, np.asarray(outcomes, bool))
     atomic_write_text(run_dir / INFO_FILE, json.dumps(
-        {"k": int(table.shape[1]), "fingerprint": motions_fingerprint(dataset.motions), "step": int(step),
-         "executed": 0 if outcomes is None else int(outcomes.shape[1])}))
-
-
-def rival_outcomes(task_name: str, data_root, table: np.ndarray) -> np.ndarray:
-    """``bool [N, L]``: whether the training motion ``table[i, j]`` succeeds when executed alone in
-    training scene i of task ``task_name`` (rebuilt from its seed in ``data_root``)."""
-    from envs.dataset import load_split
-    from envs.evaluation import run_each_candidate
-
-    train = load_split(data_root, task_name, "train")
-    if len(train) != len(table):
-        raise ValueError(f"{len(table)} rows of rivals for the {len(train)} training scenes of {task_name}")
-    return run_each_candidate(task_name, train, np.asarray(train.motions)[table], progress=True)
-
-
-def neighbour_outcomes(outcomes: np.ndarray, pool: int) -> np.ndarray:
-    """``int8 [N, pool]`` for ``MotionDataset.neighbour_outcomes``: the ``outcomes [N, L]`` of the
-    first L rivals (1 succeeded, 0 failed), -1 for the rest."""
-    out = np.full((len(outcomes), pool), -1, np.int8)
-    out[:, :outcomes.shape[1]] = outcomes
-    return out
+        {"k": int(table.shape[1]), "fingerprint": motions_fingerprint(dataset.motions), "step": int(step)}))

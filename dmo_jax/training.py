@@ -174,12 +174,6 @@ def mined_steps(cfg: TrainConfig, negatives: str) -> int:
     return cfg.ebm_mined_steps if near_negatives_meta(cfg, negatives)[0] else 0
 
 
-def executed_rivals(cfg: TrainConfig, negatives: str) -> int:
-    """How many of each training image's mined rivals an EBM executes in its scene
-    (``ebm_executed_rivals``): 0 without mined steps."""
-    return cfg.ebm_executed_rivals if mined_steps(cfg, negatives) else 0
-
-
 def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionDataset | None = None,
              augment: bool = True, heldout_near: np.ndarray | None = None,
              camera: tuple | None = None) -> ModelSpec:
@@ -199,10 +193,7 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
         if cfg.ebm_target_scale:
             if camera is None:
                 raise TrainingError("graded EBM targets (ebm_target_scale > 0) need the data's camera")
-            outcomes = None
-            if "near_outcomes" in batch:
-                outcomes = losses.candidate_outcomes(k_neg, batch["near_outcomes"], cands.shape[1], cfg, negatives)
-            targets = losses.graded_targets(cands, *camera, cfg.ebm_target_scale, outcomes)
+            targets = losses.graded_targets(cands, *camera, cfg.ebm_target_scale)
         return losses.ebm_loss(net, params, images, cands, k_loss, targets)
 
     @jax.jit  # compiled once per run, the VAE's negatives included
@@ -225,7 +216,6 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
                      cfg.ebm_steps + mined_steps(cfg, negatives), cfg.ebm_batch,
                      {"model": "ebm", "preset": preset.name, "variant": preset.variant, **_head_meta(preset),
                       "negatives": negatives, "near_negatives": near_meta, "target_scale": cfg.ebm_target_scale,
-                      "executed_rivals": executed_rivals(cfg, negatives),
                       "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives]},
                      cfg, near_meta[1])
 
@@ -306,7 +296,7 @@ def _head_meta(preset: Preset) -> dict:
 
 #: Meta of checkpoints written before a field existed: the value they were made with.
 _META_BEFORE = {"depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0],
-                "target_scale": 0.0, "executed_rivals": 0,
+                "target_scale": 0.0,
                 "inputs": "decoded"}
 
 

@@ -15,13 +15,12 @@ interrupted one resumes from its last checkpoint.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import mining, training
+from . import training
 from .config import PRESETS, Preset
 from .data import MotionDataset, motions_fingerprint, network_image
 from .neighbours import split_neighbours
@@ -50,8 +49,6 @@ class RunPaths:
             suffix += f"-graded{preset.train.ebm_target_scale * 100:g}cm"
         mined = training.mined_steps(preset.train, negatives)
         suffix += f"-mined{mined}" if mined else ""
-        executed = training.executed_rivals(preset.train, negatives)
-        suffix += f"-exec{executed}" if executed else ""
         return self.root / preset.variant / f"ebm-{negatives}{suffix}{_cue_suffix(preset)}"
 
     def dmo(self, preset: Preset, train_steps: int) -> Path:
@@ -137,9 +134,8 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed)
     rivals = heldout_rivals(train, heldout)
     ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals, camera=camera), task_name)
-    execute = functools.partial(mining.rival_outcomes, task_name, data_root)
     summary["ebm"] = _train_ebm(preset, ebm_spec, negatives, train, paths.ebm(preset, negatives), vae_params, seed,
-                                execute, log)
+                                log)
     dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=rivals), task_name)
     _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed)
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
@@ -147,11 +143,12 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
 
 
 def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: MotionDataset, run_dir: Path,
-               vae_params, seed: int, execute, log) -> dict:
+               vae_params, seed: int, log) -> dict:
     """Train (or load) the EBM of ``spec`` (made from ``preset``); with mined steps (``training.mined_steps``) in two
     parts: its ``ebm_steps``, then the rest on its own ranking of the bank (``dmo_jax.mining``),
-    stored in ``run_dir`` so that a resumed run trains on the same table. ``execute(table [N, L]) ->
-    bool [N, L]`` runs each image's first L rivals in its scene (``training.executed_rivals``)."""
+    stored in ``run_dir`` so that a resumed run trains on the same table."""
+    from . import mining
+
     cfg = preset.train
     mined = training.mined_steps(cfg, negatives)
     fit = lambda data, **kw: training.fit(spec, data, run_dir, extra=vae_params, seed=seed, **kw)  # noqa: E731
@@ -168,27 +165,10 @@ def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: 
         table = mining.ranked_rivals(params, preset, train, cfg.near_pool, log=log)
         mining.store_rivals(run_dir, table, train, cfg.ebm_steps)
     mining_seconds = time.perf_counter() - t0
-    executed, extra = training.executed_rivals(cfg, negatives), {}
-    if executed:
-        t0 = time.perf_counter()
-        outcomes = mining.stored_outcomes(run_dir, train, executed)
-        if outcomes is None:
-            if first["steps"] > cfg.ebm_steps:
-                raise training.TrainingError(
-                    f"{run_dir} holds an EBM trained past its {cfg.ebm_steps} steps without the outcomes of its "
-                    f"rivals ({mining.OUTCOME_FILE}); retrain it in another --workdir")
-            log(f"executing each training image's {executed} lowest-energy rivals in its scene")
-            outcomes = execute(table[:, :executed])
-            mining.store_rivals(run_dir, table, train, cfg.ebm_steps, outcomes)
-        train = dataclasses.replace(train, neighbour_outcomes=mining.neighbour_outcomes(outcomes, cfg.near_pool))
-        extra = {"execution_seconds": round(time.perf_counter() - t0, 2),  # included in seconds
-                 "rivals_succeeding": round(float(outcomes.mean()), 4),
-                 "images_with_a_succeeding_rival": round(float(outcomes.any(axis=1).mean()), 4)}
     _, summary = fit(dataclasses.replace(train, neighbours=table))
-    summary["seconds"] = round(summary["seconds"] + first["seconds"] + mining_seconds
-                               + extra.get("execution_seconds", 0.0), 2)
+    summary["seconds"] = round(summary["seconds"] + first["seconds"] + mining_seconds, 2)
     summary["mining_seconds"] = round(mining_seconds, 2)  # included in seconds
-    return {**summary, **extra}
+    return summary
 
 
 def _of_task(spec: training.ModelSpec, task_name: str) -> training.ModelSpec:

@@ -53,36 +53,24 @@ def execute_candidates(task, scenes, candidates: np.ndarray, backend: str = "aut
     return {"success": success, "candidate": used, "abandoned": abandoned}
 
 
-def rebuild_scenes(name: str, split: Split, episodes: int):
-    """Task ``name`` and the first ``episodes`` scenes of ``split``, rebuilt from their seeds."""
+def rebuild_scenes(name: str, test: Split, episodes: int):
+    """Task ``name`` and its first ``episodes`` test scenes, rebuilt from their seeds."""
     from envs.tasks import get_task
 
-    task = get_task(name, split.meta["image_size"])
-    return task, [task.reset(int(s)) for s in split.seeds[:episodes]]
+    task = get_task(name, test.meta["image_size"])
+    return task, [task.reset(int(s)) for s in test.seeds[:episodes]]
 
 
-def run_each_candidate(name: str, split: Split, candidates: np.ndarray, backend: str = "auto",
-                       progress: bool = False) -> np.ndarray:
+def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: str = "auto") -> np.ndarray:
     """Success ``[E, K]`` (bool) of each of the ``candidates [E, K, 101, 11]`` executed alone, with
-    no fallback, on the first ``E`` scenes of ``split`` of task ``name``: which of a method's
-    candidates would have solved each scene, had it been chosen. ``progress``: a bar over the K."""
-    from envs.progress import Progress
-
+    no fallback, on the first ``E`` test scenes of task ``name``: which of a method's candidates
+    would have solved each scene, had it been chosen."""
     candidates = np.asarray(candidates, np.float32)
     if candidates.ndim != 4:
         raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")
-    task, scenes = rebuild_scenes(name, split, len(candidates))
-    bar = Progress(f"execute {len(scenes)} scenes x {candidates.shape[1]} motions", candidates.shape[1]) \
-        if progress else None
-    success = []
-    for k in range(candidates.shape[1]):
-        success.append(execution.execute(task.world, candidates[:, k], task.batch(scenes), task.success,
-                                         backend).success)
-        if bar:
-            bar.update(k + 1)
-    if bar:
-        bar.close()
-    return np.stack(success, axis=1).astype(bool)
+    task, scenes = rebuild_scenes(name, test, len(candidates))
+    return np.stack([execution.execute(task.world, candidates[:, k], task.batch(scenes), task.success, backend).success
+                     for k in range(candidates.shape[1])], axis=1).astype(bool)
 
 
 def blind_motion(train: Split) -> np.ndarray:

@@ -184,25 +184,3 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
     ebm_dir = work / TASK / "tiny" / "concat" / nets[-1]
     assert np.load(ebm_dir / mining.INDEX_FILE).shape == (20, 16)
     assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["step"] == 20
-
-
-def test_the_bank_recipe_with_executed_rivals_labels_them_in_their_scenes(trained, tmp_path):
-    from dmo_jax import mining
-
-    shared_data, shared_work, _ = trained
-    data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
-    preset = get_preset("tiny", recipe="bank").with_overrides(["ebm_executed_rivals=3"])
-    summary = workflow.train_task(TASK, preset, data, work, log=lambda m: None)
-    ebm_dir = work / TASK / "tiny" / "concat" / "ebm-in-data+vae-near2of16-graded1cm-mined8-exec3-cue"
-    table, outcomes = np.load(ebm_dir / mining.INDEX_FILE), np.load(ebm_dir / mining.OUTCOME_FILE)
-    assert outcomes.shape == (20, 3) and outcomes.dtype == bool
-    assert summary["ebm"]["rivals_succeeding"] == pytest.approx(outcomes.mean(), abs=1e-4)
-    assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["executed"] == 3
-    # an outcome is the rival's own execution in the image's scene: each image's own motion succeeds there
-    own = mining.rival_outcomes(TASK, data, np.concatenate([np.arange(20)[:, None], table[:, :1]], axis=1))
-    assert own[:, 0].all() and np.array_equal(own[:, 1], outcomes[:, 0])
-    # a second run finds the EBM trained and its outcomes stored: nothing is executed again
-    written = (ebm_dir / mining.OUTCOME_FILE).stat().st_mtime_ns
-    again = workflow.train_task(TASK, preset, data, work, log=lambda m: None)
-    assert again["ebm"]["steps"] == summary["ebm"]["steps"]
-    assert (ebm_dir / mining.OUTCOME_FILE).stat().st_mtime_ns == written

@@ -104,61 +104,6 @@ def test_near_negatives_lie_closer_to_the_positive_than_random_ones(tmp_path):
     assert paper.shape == cands.shape
 
 
-def test_candidate_outcomes_are_those_of_the_near_negatives_drawn(tmp_path):
-    bank = _motions(64)
-    index = neighbours.split_neighbours(tmp_path, bank, bank, K, 64, k=16, is_bank=True)
-    outcomes = (index % 3 == 0).astype(np.int8)  # "succeeded" for rivals whose index is a multiple of 3
-    outcomes[:, 6:] = -1  # only the first 6 executed
-    data = MotionDataset(np.zeros((64, 32, 32, 4), np.float32), bank, index, outcomes)
-    batch = data.batch(seed=0, step=3, size=16, near=8)
-    assert batch["near_outcomes"].shape == (16, 8)
-    vae = VAENet.from_preset(TINY)
-    cfg = dataclasses.replace(TINY.train, ebm_gt_negatives=6, ebm_near_negatives=3, near_pool=8)
-    key = jax.random.key(7)
-    cands = np.asarray(losses.ebm_candidates(vae, random_params(vae), jnp.asarray(batch["motions"]), key, cfg,
-                                             near=jnp.asarray(batch["near"])))
-    labels = np.asarray(losses.candidate_outcomes(key, jnp.asarray(batch["near_outcomes"]), cands.shape[1], cfg))
-    assert labels.shape == cands.shape[:2] and (labels[:, 0] == 1).all() and (labels[:, 4:] == -1).all()
-    for c, row in zip(cands, labels):
-        positive = int(np.flatnonzero((bank == c[0]).all(axis=(1, 2)))[0])
-        for m, label in zip(c[1:4], row[1:4]):
-            rival = int(np.flatnonzero((bank == m).all(axis=(1, 2)))[0])
-            rank = list(index[positive]).index(rival)
-            assert label == (-1 if rank >= 6 else int(rival % 3 == 0))
-
-
-def test_graded_targets_count_a_rival_that_succeeded_as_the_positive_and_one_that_failed_as_wrong():
-    bank = _motions(5, seed=4)
-    cands = jnp.asarray(bank[None])
-    plain = np.asarray(losses.graded_targets(cands, K, 64, scale=0.3))[0]
-    labelled = np.asarray(losses.graded_targets(cands, K, 64, 0.3, jnp.asarray([[1, 1, 0, -1, -1]], jnp.int8)))[0]
-    np.testing.assert_allclose(labelled.sum(), 1.0, rtol=1e-5)
-    assert labelled[1] == pytest.approx(labelled[0]) and labelled[2] == 0.0
-    # the rivals not executed keep their share relative to the positive
-    np.testing.assert_allclose(labelled[3:] / labelled[0], plain[3:] / plain[0], rtol=1e-4)
-
-
-def test_executed_rivals_settings_and_their_stored_outcomes(tmp_path):
-    bank = get_preset("cpu", recipe="bank")
-    assert bank.with_overrides(["ebm_executed_rivals=8"]).train.ebm_executed_rivals == 8
-    with pytest.raises(ValueError, match="exceeds near_pool"):
-        bank.with_overrides(["ebm_executed_rivals=17"])
-    with pytest.raises(ValueError, match="needs ebm_mined_steps"):
-        get_preset("cpu", recipe="paper").with_overrides(["ebm_executed_rivals=4"])
-    assert get_preset("cpu", recipe="paper").train.ebm_executed_rivals == 0
-    data = MotionDataset(np.zeros((6, 8, 8, 4), np.float32), _motions(6))
-    table = np.tile(np.arange(3, dtype=np.int32), (6, 1))
-    outcomes = np.random.default_rng(0).uniform(size=(6, 2)) < 0.5
-    mining.store_rivals(tmp_path, table, data, step=20)
-    assert mining.stored_outcomes(tmp_path, data, 2) is None  # ranked, not yet executed
-    mining.store_rivals(tmp_path, table, data, step=20, outcomes=outcomes)
-    assert np.array_equal(mining.stored_rivals(tmp_path, data, 3), table)
-    assert np.array_equal(mining.stored_outcomes(tmp_path, data, 2), outcomes)
-    assert mining.stored_outcomes(tmp_path, data, 3) is None  # another count
-    assert mining.stored_outcomes(tmp_path, dataclasses.replace(data, motions=_motions(6, seed=2)), 2) is None
-    assert mining.neighbour_outcomes(outcomes, 4).tolist() == [[int(a), int(b), -1, -1] for a, b in outcomes]
-
-
 def test_graded_targets_rank_candidates_by_their_distance_from_the_positive():
     bank = _motions(9, seed=3)
     cands = jnp.asarray(bank[None])  # the first motion is the positive

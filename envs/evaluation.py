@@ -69,7 +69,8 @@ def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: 
     if candidates.ndim != 4:
         raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")
     task, scenes = rebuild_scenes(name, test, len(candidates))
-    return np.stack([execution.execute(task.world, candidates[:, k], task.batch(scenes), task.success, backend).success
+    batch = task.batch(scenes)
+    return np.stack([execution.execute(task.world, candidates[:, k], batch, task.success, backend).success
                      for k in range(candidates.shape[1])], axis=1).astype(bool)
 
 

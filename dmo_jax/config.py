@@ -362,11 +362,11 @@ CPU = Preset(
     # depth cue (and the paper's DMO inputs) 77.9 %, reach_target 35 -> 79 % ("What each part
     # of the recipe adds"). With 200 mined EBM steps after the 500 (retrained on regenerated data):
     # 84.9 % against 77.2 %, put_knife 33 -> 53 % ("The cpu default on nine tasks").
-    # Coarse bank scoring: every 6th pose, the best 64 rescored in full. On the nine tasks x 300
-    # test scenes with these networks it kept 99.96-100 % of the full scoring's top 8, and sort
-    # solved the same scenes, in 3.4x less time than the full scoring (BENCHMARKS.md,
-    # "Coarse-to-fine bank scoring"); every 4th pose kept them all too, with more work.
-    coarse=CoarseRanking(stride=6, keep=64),
+    # Coarse bank scoring: every 6th pose, the best 32 rescored in full. On the nine tasks x 300
+    # test scenes with the 96 px networks it kept 99.1-100 % of the full scoring's top 8, and sort
+    # solved the same scenes; predict() took 4.4x less time than with the full scoring (3.5x when
+    # keeping 64; BENCHMARKS.md, "Coarse-to-fine bank scoring"). Every 8th pose missed the 95 %.
+    coarse=CoarseRanking(stride=6, keep=32),
     # The mined steps' ranking of the bank (16 motions for each of 1,000 training images): every
     # 12th pose, the best 32 rescored in full, 68-78 s against 128 s for the prediction's scoring.
     # It kept 99.96 % of that scoring's table on reach_target and 75 % on put_knife, where the

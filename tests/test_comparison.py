@@ -117,8 +117,8 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
         "dmo n=8 R=1 [bank]"
     assert row_label(dmo, {"recipe": "bank", "depth_cue": True}) == "dmo n=8 R=1 (no mined negatives) [bank]"
     # two-stage scorings measured to choose what the full one chooses share its row; others do not
-    assert row_label({**dmo, "coarse": [6, 64]}, bank) == row_label({**dmo, "coarse": [4, 64]}, bank) == \
-        row_label({**dmo, "coarse": None}, bank) == "dmo n=8 R=1 [bank]"
+    assert row_label({**dmo, "coarse": [6, 32]}, bank) == row_label({**dmo, "coarse": [6, 64]}, bank) == \
+        row_label({**dmo, "coarse": [4, 64]}, bank) == row_label({**dmo, "coarse": None}, bank) == "dmo n=8 R=1 [bank]"
     assert row_label({**dmo, "coarse": [8, 64]}, bank) == "dmo n=8 R=1 (coarse 8/64) [bank]"
     # networks of two image sizes never share a row: the size is recorded, set, or (files older
     # than the field) the one the file's preset had then

@@ -106,8 +106,8 @@ def predict_benchmark(preset: str = "cpu", bank_size: int = 1000, ns=(1, 8, 64, 
 
 def _paths_round_robin(models, image, bank, key, p, n: int, repeats: int) -> list[dict]:
     """One image's ``predict()`` (``dmo``, top ``n``, R = 1) by each path of scoring the bank: in
-    full, in two stages (:class:`~dmo_jax.inference.CoarseRanking`, stride 4 and 6 keeping 64),
-    each from the bare bank and from its :class:`~dmo_jax.inference.BankCache`, timed round-robin
+    full, in two stages (:class:`~dmo_jax.inference.CoarseRanking`: every 6th pose, keeping 64 or
+    32), each from the bare bank and from its :class:`~dmo_jax.inference.BankCache`, timed round-robin
     (one call of each per round), with XLA's FLOP count of each (compiled with the bank in one
     chunk: XLA counts a loop's body once). The cache is made once, outside the timing, as
     ``bin/evaluate`` makes it once per task."""
@@ -115,7 +115,7 @@ def _paths_round_robin(models, image, bank, key, p, n: int, repeats: int) -> lis
 
     cache = jax.block_until_ready(cache_bank(models, bank, preset=p))
     paths = {}
-    for coarse in (None, CoarseRanking(4, 64), CoarseRanking(6, 64)):
+    for coarse in (None, CoarseRanking(6, 64), CoarseRanking(6, 32)):
         name = "full" if coarse is None else "coarse {}/{}".format(*coarse)
         paths[name] = (coarse, bank)
         paths[name + ", cached bank"] = (coarse, cache)

@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--coarse", metavar="STRIDE,KEEP|full",
                         help="how the bank is scored: in two stages (dmo_jax.config.CoarseRanking), every motion on "
                         "every STRIDE-th pose, then the KEEP best on all poses, e.g. 6,64; or full, every motion on "
-                        "all poses (default: the preset's, cpu 6,64 and paper full)")
+                        "all poses (default: the preset's, cpu 6,32 and paper full)")
     parser.add_argument("--coarse-recall", action="store_true",
                         help="also score the bank in full, untimed, and report how many of its top n the coarse "
                         "scoring kept (coarse_recall)")

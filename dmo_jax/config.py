@@ -141,6 +141,9 @@ class TrainConfig:
     # solved 72.3 % of nine tasks against 70.2 % (BENCHMARKS.md, "What each part of the recipe adds").
     dmo_inputs: str = "decoded"
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
+    # Not in the paper (0 = off: the DMO's candidates ranked by energy): > 0 fits the selection head
+    # (dmo_jax.selection) on the DMO's candidates for this many training scenes, each executed there.
+    selection_scenes: int = 0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -149,7 +152,7 @@ class TrainConfig:
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
             # counts and sizes are positive; the counts of extras may be 0
             if isinstance(value, (int, float)) and not isinstance(value, bool):
-                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup", "_mined_steps")) else 1
+                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup", "_mined_steps", "_scenes")) else 1
                 if value < low:
                     raise ValueError(f"{f.name} must be {'>= 0' if low == 0 else 'positive'}, got {value}")
         if self.ebm_target_scale < 0:

@@ -46,6 +46,7 @@ from .checks import check_arrays, check_params, is_concrete, is_integer
 from .config import CoarseRanking, Preset, get_preset
 from .losses import dmo_unroll
 from .networks import DMONet, EBMNet
+from .selection import selection_scores
 from .vae import VAENet
 
 
@@ -70,6 +71,7 @@ class Models(NamedTuple):
     ebm: Any
     dmo: Any = None
     vae: Any = None
+    selection: Any = None  # the DMO's selection head, weights [w + 1] (dmo_jax.selection); None: by energy
 
 
 class Ranking(NamedTuple):
@@ -101,7 +103,9 @@ class BankCache(NamedTuple):
 
 class Prediction(NamedTuple):
     """``motion [..., 101, 11]`` the best candidate; ``candidates [..., K, 101, 11]`` all
-    candidates ranked by ``energies [..., K]`` (ascending). K = n * (R + 1) for ``dmo``,
+    candidates, best first, and their ``energies [..., K]``: ranked by energy (ascending) unless
+    the networks have a selection head (:attr:`Models.selection`, ``dmo`` only), which ranks them
+    by its score instead. K = n * (R + 1) for ``dmo``,
     n for ``sort``, 2 n for the other methods (originals + optimised)."""
 
     motion: jax.Array
@@ -292,18 +296,21 @@ class Method(NamedTuple):
     """A way to optimise the EBM's top n: ``optimise(call, start [n, 101, 11], key)`` returns the
     new candidates; ``needs``: the networks it uses besides the EBM (fields of :class:`Models`);
     ``uses_R``: whether R (the DMO's refinements) changes its result; ``candidates(n, R)``: K,
-    how many ranked candidates :func:`predict` returns (starts included)."""
+    how many ranked candidates :func:`predict` returns (starts included); ``selected``: whether
+    its candidates are ranked by the selection head where the networks have one
+    (:attr:`Models.selection`), else by energy."""
 
     optimise: Callable
     needs: tuple[str, ...] = ()
     uses_R: bool = False
     candidates: Callable[[int, int], int] = lambda n, R: 2 * n
+    selected: bool = False
 
 
 #: The methods of :func:`predict` (docs/method.md, "Baselines"), by name.
 METHOD_REGISTRY: dict[str, Method] = {
     "sort": Method(_sort, candidates=lambda n, R: n),
-    "dmo": Method(_dmo, ("dmo",), True, lambda n, R: n * (R + 1)),
+    "dmo": Method(_dmo, ("dmo",), True, lambda n, R: n * (R + 1), selected=True),
     "langevin": Method(functools.partial(_gradient, noise=True)),
     "gd": Method(functools.partial(_gradient, noise=False)),
     "vaebm-l": Method(lambda call, start, key: _vaebm(call, start, key, call.settings.vaebm_l_step), ("vae",)),
@@ -324,7 +331,8 @@ def num_candidates(method: str, n: int, R: int) -> int:
 def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: OptimizerSettings, models: Models,
                 image, ranking: Ranking, key) -> Prediction:
     """Optimise one image's starting motions ``ranking.motions [n, 101, 11]`` with ``method`` and
-    rank the starts and the results by energy (a ranking's missing F or energies are computed)."""
+    rank the starts and the results by energy, or by the selection head (a ranking's missing F or
+    energies are computed)."""
     ebm = EBMNet(preset)
     start = ranking.motions
     f_ebm = ebm.encode(models.ebm, image) if ranking.feature is None else ranking.feature
@@ -336,7 +344,10 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
     cands = jnp.concatenate([start, new])
     energies = jnp.concatenate([start_energy, chunked_energy(ebm, models.ebm, f_ebm, new, chunk)]) if new.shape[0] \
         else start_energy
-    order = jnp.argsort(energies)
+    if models.selection is not None and METHOD_REGISTRY[method].selected:
+        order = jnp.argsort(-selection_scores(models.selection, ebm.pooled(models.ebm, f_ebm, cands), energies))
+    else:
+        order = jnp.argsort(energies)
     cands, energies = cands[order], energies[order]
     return Prediction(cands[0], cands, energies)
 

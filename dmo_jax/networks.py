@@ -305,12 +305,18 @@ class EBM(_ImageMotionModule):
         """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
         coarse ranking (``inference``), which scores motions on a subset of their poses.
         ``pose``: the motions' :meth:`pose_activations` ``[..., T, P]``, computed beforehand."""
+        return self.energy_mlp(self.pooled(feature, motions, pose, deterministic))[..., 0]
+
+    def pooled(self, feature, motions, pose=None, deterministic: bool = True):
+        """The head's tokens averaged over each motion, what the energy is read from:
+        ``F [H, W, w]``, ``motions [..., T, 11]`` -> ``[..., w]``."""
         _check_feature(feature, self.preset.head)
         flat, lead = _flatten_motions(motions, any_length=True)
         if pose is not None:
             pose = pose.reshape(flat.shape[:2] + pose.shape[-1:])
         tokens, _ = self.trunk(feature, flat, deterministic, pose)
-        return self.energy_mlp(jnp.mean(tokens, axis=-2))[..., 0].reshape(lead)
+        pooled = jnp.mean(tokens, axis=-2)
+        return pooled.reshape(lead + pooled.shape[-1:])
 
     def pose_activations(self, motions, deterministic: bool = True):
         """``motions [..., T, 11]`` -> the head's activations that do not depend on the image,
@@ -425,6 +431,11 @@ class EBMNet(_Net):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> energies ``[...]`` (lower is better);
         ``pose``: the motions' :meth:`pose_activations` (equal energies to float rounding)."""
         return self._apply(params, "energy", feature, motions, pose, train=train, rng=rng)
+
+    def pooled(self, params, feature, motions):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> ``[..., w]``: the head's tokens averaged
+        over each motion (the energy is an MLP of them)."""
+        return self._apply(params, "pooled", feature, motions, None, train=False, rng=None)
 
     def pose_activations(self, params, motions):
         """``motions [..., T, 11]`` -> ``[..., T, P]``: the head's work on the poses alone, which

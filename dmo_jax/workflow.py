@@ -59,6 +59,13 @@ class RunPaths:
                                              + _cue_suffix(preset))
 
 
+    def selection(self, preset: Preset, negatives: str, train_steps: int) -> Path:
+        """The selection head of the EBM and DMO above (``dmo_jax.selection``)."""
+        return (self.root / preset.variant / "selection" /
+                f"{self.ebm(preset, negatives).name}+{self.dmo(preset, train_steps).name}"
+                f"-{preset.train.selection_scenes}.json")
+
+
 def _cue_suffix(preset: Preset) -> str:
     """``-cue`` for a head reading the depth cue (``-cue10cm`` bounded to 0.1 m), else nothing."""
     head = preset.head
@@ -134,17 +141,26 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
     vae_params, summary["vae"] = training.fit(vae_spec, train, paths.vae(), seed=seed)
     rivals = heldout_rivals(train, heldout)
     ebm_spec = _of_task(training.ebm_spec(preset, negatives, heldout, heldout_near=rivals, camera=camera), task_name)
-    summary["ebm"] = _train_ebm(preset, ebm_spec, negatives, train, paths.ebm(preset, negatives), vae_params, seed,
-                                log)
+    ebm_params, summary["ebm"] = _train_ebm(preset, ebm_spec, negatives, train, paths.ebm(preset, negatives),
+                                            vae_params, seed, log)
     dmo_spec = _of_task(training.dmo_spec(preset, r, heldout, camera, heldout_near=rivals), task_name)
-    _, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed)
+    dmo_params, summary["dmo"] = training.fit(dmo_spec, train, paths.dmo(preset, r), extra=vae_params, seed=seed)
+    if preset.train.selection_scenes:
+        from envs.dataset import load_split
+
+        from .inference import Models
+        from .selection import train_selection
+
+        summary["selection"] = train_selection(
+            task_name, Models(ebm_params, dmo_params), preset, load_split(data_root, task_name, "train"),
+            paths.selection(preset, negatives, r), paths.ebm(preset, negatives).name, paths.dmo(preset, r).name, log)
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
     return summary
 
 
 def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: MotionDataset, run_dir: Path,
-               vae_params, seed: int, log) -> dict:
-    """Train (or load) the EBM of ``spec`` (made from ``preset``); with mined steps (``training.mined_steps``) in two
+               vae_params, seed: int, log) -> tuple:
+    """Train (or load) the EBM of ``spec`` (made from ``preset``): ``(params, summary)``; with mined steps (``training.mined_steps``) in two
     parts: its ``ebm_steps``, then the rest on its own ranking of the bank (``dmo_jax.mining``),
     stored in ``run_dir`` so that a resumed run trains on the same table."""
     from . import mining
@@ -153,7 +169,7 @@ def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: 
     mined = training.mined_steps(cfg, negatives)
     fit = lambda data, **kw: training.fit(spec, data, run_dir, extra=vae_params, seed=seed, **kw)  # noqa: E731
     if not mined:
-        return fit(train)[1]
+        return fit(train)
     params, first = fit(train, stop_after=cfg.ebm_steps)
     t0 = time.perf_counter()
     table = mining.stored_rivals(run_dir, train, cfg.near_pool)
@@ -165,10 +181,10 @@ def _train_ebm(preset: Preset, spec: training.ModelSpec, negatives: str, train: 
         table = mining.ranked_rivals(params, preset, train, cfg.near_pool, log=log)
         mining.store_rivals(run_dir, table, train, cfg.ebm_steps)
     mining_seconds = time.perf_counter() - t0
-    _, summary = fit(dataclasses.replace(train, neighbours=table))
+    params, summary = fit(dataclasses.replace(train, neighbours=table))
     summary["seconds"] = round(summary["seconds"] + first["seconds"] + mining_seconds, 2)
     summary["mining_seconds"] = round(mining_seconds, 2)  # included in seconds
-    return summary
+    return params, summary
 
 
 def _of_task(spec: training.ModelSpec, task_name: str) -> training.ModelSpec:
@@ -201,4 +217,12 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
         dmo = load(paths.dmo(preset, r), training.dmo_spec(preset, r))
     if "vae" in needs:
         vae = load(paths.vae(), training.vae_spec(preset))
-    return Models(ebm, dmo, vae)
+    selection = None
+    if preset.train.selection_scenes and any(METHOD_REGISTRY[m].selected for m in methods):
+        from .selection import load_weights
+
+        if bank is None:
+            raise ValueError("load_models: a selection head is loaded only with the training motions (bank)")
+        selection = load_weights(paths.selection(preset, negatives, r), bank, paths.ebm(preset, negatives).name,
+                                 paths.dmo(preset, r).name, preset.train.selection_scenes)
+    return Models(ebm, dmo, vae, selection)

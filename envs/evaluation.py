@@ -16,6 +16,7 @@ import numpy as np
 from envs import execution
 from envs import motion as motion_lib
 from envs.dataset import Split
+from envs.progress import Progress
 
 #: The paper's column order and abbreviations.
 TASK_ORDER = (
@@ -61,17 +62,27 @@ def rebuild_scenes(name: str, test: Split, episodes: int):
     return task, [task.reset(int(s)) for s in test.seeds[:episodes]]
 
 
-def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: str = "auto") -> np.ndarray:
+def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: str = "auto",
+                       progress: str | None = None) -> np.ndarray:
     """Success ``[E, K]`` (bool) of each of the ``candidates [E, K, 101, 11]`` executed alone, with
-    no fallback, on the first ``E`` test scenes of task ``name``: which of a method's candidates
-    would have solved each scene, had it been chosen."""
+    no fallback, on the first ``E`` scenes of task ``name``'s split ``test``: which of a method's
+    candidates would have solved each scene, had it been chosen. ``progress``: a label to report
+    progress under, per candidate rank."""
+    from envs.progress import Progress
+
     candidates = np.asarray(candidates, np.float32)
     if candidates.ndim != 4:
         raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")
     task, scenes = rebuild_scenes(name, test, len(candidates))
-    batch = task.batch(scenes)
-    return np.stack([execution.execute(task.world, candidates[:, k], batch, task.success, backend).success
-                     for k in range(candidates.shape[1])], axis=1).astype(bool)
+    batch, k = task.batch(scenes), candidates.shape[1]
+    bar, success = Progress(progress, k) if progress else None, []
+    for i in range(k):
+        success.append(execution.execute(task.world, candidates[:, i], batch, task.success, backend).success)
+        if bar:
+            bar.update(i + 1)
+    if bar:
+        bar.close()
+    return np.stack(success, axis=1).astype(bool)
 
 
 def blind_motion(train: Split) -> np.ndarray:

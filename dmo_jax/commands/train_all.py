@@ -92,4 +92,10 @@ def _summary_table(summaries: dict) -> str:
         rows.append(f"| {name} | {s['vae']['seconds']:.0f} | {ebm['seconds']:.0f} | {dmo['seconds']:.0f} | "
                     f"{100 * ebm.get('heldout_top1', nan):.1f} % | {100 * ebm.get('heldout_near_top1', nan):.0f} %, "
                     f"{100 * ebm.get('heldout_near_first_error', nan):.1f} | {before:.4f} → {after:.4f} |")
+    for name, s in summaries.items():
+        if "selection" in s:
+            sel = s["selection"]
+            rows.append(f"{name}: selection head on {sel['scenes']} training scenes (fitted on them): the lowest "
+                        f"energy succeeds in {100 * sel['lowest_energy_succeeds']:.1f} %, the head's choice in "
+                        f"{100 * sel['selected_succeeds']:.1f} % ({sel['seconds']:.0f} s)")
     return "\n".join(rows)

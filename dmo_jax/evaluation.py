@@ -256,7 +256,8 @@ def ebm_heldout_misses(task_name: str, *, preset: Preset, workdir, data_root,
     from .workflow import load_models, load_task_data
 
     train, test, (intrinsics, size) = load_task_data(task_name, data_root, preset, generate=False)
-    ebm_params, _, vae_params = load_models(workdir, task_name, preset, "vaebm-l", negatives, bank=train.motions)
+    models = load_models(workdir, task_name, preset, "vaebm-l", negatives, bank=train.motions)
+    ebm_params, vae_params = models.ebm, models.vae
     ebm = EBMNet(preset)
     cands = training.heldout_ebm_candidates(preset, vae_params, test.motions)
 

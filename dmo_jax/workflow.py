@@ -58,7 +58,6 @@ class RunPaths:
         return self.root / preset.variant / (f"dmo-R{train_steps}" + ("" if inputs == "decoded" else f"-{inputs}")
                                              + _cue_suffix(preset))
 
-
     def selection(self, preset: Preset, negatives: str, train_steps: int) -> Path:
         """The selection head of the EBM and DMO above (``dmo_jax.selection``)."""
         return (self.root / preset.variant / "selection" /

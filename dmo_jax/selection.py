@@ -78,7 +78,7 @@ def training_candidates(models, preset: Preset, images: np.ndarray, bank: np.nda
     from .networks import EBMNet
 
     ebm, cache = EBMNet(preset), cache_bank(models, jnp.asarray(bank), preset=preset)
-    pooled_of = jax.jit(lambda params, image, motions: ebm.pooled(params, ebm.encode(params, image), motions))
+    pooled_of = jax.jit(jax.vmap(ebm.pooled, (None, 0, 0)))  # from each image's F, kept by the ranking
     cands, energies, pooled = [], [], []
     progress = Progress("the DMO's candidates", len(images))
     for i in range(0, len(images), batch):
@@ -91,7 +91,7 @@ def training_candidates(models, preset: Preset, images: np.ndarray, bank: np.nda
         out = refine(models, x, start, jax.random.fold_in(jax.random.key(seed), i), preset=preset, method="dmo", R=R)
         cands.append(np.asarray(out.candidates))
         energies.append(np.asarray(out.energies))
-        pooled.append(np.asarray(jax.vmap(pooled_of, (None, 0, 0))(models.ebm, x, out.candidates)))
+        pooled.append(np.asarray(pooled_of(models.ebm, ranking.feature, out.candidates)))
         progress.update(min(i + batch, len(images)))
     progress.close()
     return np.concatenate(cands), np.concatenate(energies), np.concatenate(pooled)

@@ -68,8 +68,6 @@ def run_each_candidate(name: str, test: Split, candidates: np.ndarray, backend: 
     no fallback, on the first ``E`` scenes of task ``name``'s split ``test``: which of a method's
     candidates would have solved each scene, had it been chosen. ``progress``: a label to report
     progress under, per candidate rank."""
-    from envs.progress import Progress
-
     candidates = np.asarray(candidates, np.float32)
     if candidates.ndim != 4:
         raise ValueError(f"candidates must be [E, K, T, 11], got shape {candidates.shape}")

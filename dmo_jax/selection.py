@@ -13,7 +13,7 @@ candidates, from weights that rank by energy alone and with an L2 pull back to t
 prediction then ranks its candidates by that score (the networks are unchanged; ``sort`` and the
 other methods still rank by energy). Stored per EBM and DMO as one JSON file beside them::
 
-    {"weights": [w + 1 floats], "fingerprint", "ebm", "dmo", "scenes", ...summary}
+    {"weights": [w + 1 floats], "fingerprint": the training motions', "scenes", ...summary}
 """
 from __future__ import annotations
 
@@ -105,11 +105,10 @@ def _bank_index(motions: jax.Array, bank: np.ndarray) -> np.ndarray:
     return np.array([where[m.tobytes()] for m in motions.reshape((-1,) + motions.shape[2:])]).reshape(motions.shape[:2])
 
 
-def train_selection(task_name: str, models, preset: Preset, train, path: Path, ebm_name: str,
-                    dmo_name: str, log=print) -> dict:
+def train_selection(task_name: str, models, preset: Preset, train, path: Path, log=print) -> dict:
     """Fit (or load) the selection head of these networks on the first ``preset.train.selection_scenes``
-    scenes of the training split ``train`` (``envs.dataset.Split``), stored at ``path``; returns
-    its summary."""
+    scenes of the training split ``train`` (``envs.dataset.Split``), stored at ``path`` (named
+    after the networks and the scene count, ``RunPaths.selection``); returns its summary."""
     from envs.dataset import atomic_write_text
     from envs.evaluation import run_each_candidate
 
@@ -119,7 +118,7 @@ def train_selection(task_name: str, models, preset: Preset, train, path: Path, e
     bank = np.asarray(train.motions, np.float32)
     if not 1 <= scenes <= len(bank):
         raise ValueError(f"selection_scenes must be in [1, {len(bank)}] (the training scenes), got {scenes}")
-    stored = _stored(path, bank, ebm_name, dmo_name, scenes)
+    stored = _stored(path, bank)
     if stored is not None:
         return {k: v for k, v in stored.items() if k not in ("weights", "fingerprint")}
     t0 = time.perf_counter()
@@ -129,7 +128,7 @@ def train_selection(task_name: str, models, preset: Preset, train, path: Path, e
     success = run_each_candidate(task_name, train, cands, progress="execute the candidates")
     weights = fit_weights(pooled, energies, success)
     chosen = np.argmax(selection_scores(weights, pooled, energies), axis=1)
-    summary = {"scenes": scenes, "l2": L2, "ebm": ebm_name, "dmo": dmo_name,
+    summary = {"scenes": scenes, "l2": L2,
                "candidate_succeeds": round(float(success.mean()), 4),
                "some_candidate_succeeds": round(float(success.any(axis=1).mean()), 4),
                "lowest_energy_succeeds": round(float(success[:, 0].mean()), 4),
@@ -141,20 +140,18 @@ def train_selection(task_name: str, models, preset: Preset, train, path: Path, e
     return summary
 
 
-def _stored(path: Path, bank: np.ndarray, ebm_name: str, dmo_name: str, scenes: int) -> dict | None:
+def _stored(path: Path, bank: np.ndarray) -> dict | None:
     try:
         stored = json.loads(path.read_text())
     except FileNotFoundError:
         return None
-    same = (stored.get("fingerprint") == motions_fingerprint(bank) and stored.get("ebm") == ebm_name
-            and stored.get("dmo") == dmo_name and stored.get("scenes") == scenes)
-    return stored if same else None
+    return stored if stored.get("fingerprint") == motions_fingerprint(bank) else None
 
 
-def load_weights(path: Path, bank: np.ndarray, ebm_name: str, dmo_name: str, scenes: int) -> np.ndarray:
-    """The weights :func:`train_selection` stored at ``path`` for these networks and training motions;
+def load_weights(path: Path, bank: np.ndarray) -> np.ndarray:
+    """The weights :func:`train_selection` stored at ``path`` for these training motions;
     ``ValueError`` naming the file when there are none."""
-    stored = _stored(path, bank, ebm_name, dmo_name, scenes)
+    stored = _stored(path, bank)
     if stored is None:
         raise ValueError(f"no selection head for these networks and data in {path}: train it first (bin/train_all)")
     return np.asarray(stored["weights"], np.float32)

@@ -152,7 +152,7 @@ def train_task(task_name: str, preset: Preset, data_root, workdir, negatives: st
 
         summary["selection"] = train_selection(
             task_name, Models(ebm_params, dmo_params), preset, load_split(data_root, task_name, "train"),
-            paths.selection(preset, negatives, r), paths.ebm(preset, negatives).name, paths.dmo(preset, r).name, log)
+            paths.selection(preset, negatives, r), log)
     summary["total_seconds"] = round(time.perf_counter() - t0, 1)
     return summary
 
@@ -222,6 +222,5 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
 
         if bank is None:
             raise ValueError("load_models: a selection head is loaded only with the training motions (bank)")
-        selection = load_weights(paths.selection(preset, negatives, r), bank, paths.ebm(preset, negatives).name,
-                                 paths.dmo(preset, r).name, preset.train.selection_scenes)
+        selection = load_weights(paths.selection(preset, negatives, r), bank)
     return Models(ebm, dmo, vae, selection)

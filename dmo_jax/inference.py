@@ -342,11 +342,13 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
 
     # the starts keep their bank-scoring energies: only the optimised motions are scored here
     cands = jnp.concatenate([start, new])
-    energies = jnp.concatenate([start_energy, chunked_energy(ebm, models.ebm, f_ebm, new, chunk)]) if new.shape[0] \
-        else start_energy
     if models.selection is not None and METHOD_REGISTRY[method].selected:
-        order = jnp.argsort(-selection_scores(models.selection, ebm.pooled(models.ebm, f_ebm, cands), energies))
+        pooled = ebm.pooled(models.ebm, f_ebm, cands)  # one pass gives the head's input and the new energies
+        energies = jnp.concatenate([start_energy, ebm.energy_of_pooled(models.ebm, pooled[start.shape[0]:])])
+        order = jnp.argsort(-selection_scores(models.selection, pooled, energies))
     else:
+        energies = jnp.concatenate([start_energy, chunked_energy(ebm, models.ebm, f_ebm, new, chunk)]) \
+            if new.shape[0] else start_energy
         order = jnp.argsort(energies)
     cands, energies = cands[order], energies[order]
     return Prediction(cands[0], cands, energies)

@@ -305,7 +305,11 @@ class EBM(_ImageMotionModule):
         """``F [H, W, w]``, ``motions [..., T, 11]`` -> energies ``[...]``. T is 101 but for a
         coarse ranking (``inference``), which scores motions on a subset of their poses.
         ``pose``: the motions' :meth:`pose_activations` ``[..., T, P]``, computed beforehand."""
-        return self.energy_mlp(self.pooled(feature, motions, pose, deterministic))[..., 0]
+        return self.energy_of_pooled(self.pooled(feature, motions, pose, deterministic))
+
+    def energy_of_pooled(self, pooled, deterministic: bool = True):
+        """:meth:`pooled` tokens ``[..., w]`` -> energies ``[...]``."""
+        return self.energy_mlp(pooled)[..., 0]
 
     def pooled(self, feature, motions, pose=None, deterministic: bool = True):
         """The head's tokens averaged over each motion, what the energy is read from:
@@ -436,6 +440,10 @@ class EBMNet(_Net):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> ``[..., w]``: the head's tokens averaged
         over each motion (the energy is an MLP of them)."""
         return self._apply(params, "pooled", feature, motions, None, train=False, rng=None)
+
+    def energy_of_pooled(self, params, pooled):
+        """:meth:`pooled` tokens ``[..., w]`` -> their energies ``[...]``, equal to :meth:`energy`'s."""
+        return self._apply(params, "energy_of_pooled", pooled, train=False, rng=None)
 
     def pose_activations(self, params, motions):
         """``motions [..., T, 11]`` -> ``[..., T, P]``: the head's work on the poses alone, which

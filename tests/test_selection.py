@@ -51,6 +51,8 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained, tmp_pa
     pooled = ebm.pooled(models.ebm, ebm.encode(models.ebm, image), dmo.candidates)
     scores = np.asarray(selection.selection_scores(models.selection, pooled, dmo.energies))
     assert np.all(np.diff(scores) <= 1e-5)  # best first by the head's score
+    by_energy = inference.predict(models._replace(selection=None), image, bank, key, preset=preset, method="dmo", n=2, R=1)
+    np.testing.assert_allclose(np.sort(dmo.energies), by_energy.energies, rtol=1e-5, atol=1e-5)  # same candidates, same energies
     sort = inference.predict(models, image, bank, key, preset=preset, method="sort", n=2)
     assert np.all(np.diff(np.asarray(sort.energies)) >= 0)  # sort still by energy
 

@@ -27,7 +27,8 @@ Rows = dict[str, dict[str, np.ndarray]]
 def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row (``(coarse 4/32)`` after a
     two-stage bank scoring other than those of ``SAME_AS_FULL``, which share the full scoring's
-    row); a DMO trained with a non-default number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it, one trained on other
+    row); a DMO trained with a non-default number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it,
+    one whose candidates a selection head ranks ``(selection head 300)`` (its training scenes), one trained on other
     inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
     recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), an EBM trained on its own ranking of
     the bank where its recipe's is not, or the reverse (``(mined negatives)``, ``(no mined negatives)``),
@@ -43,12 +44,16 @@ def row_label(result: dict, settings: dict) -> str:
         label += " (coarse {}/{})".format(*result["coarse"])
     trained = settings.get("dmo_train_steps")
     label += f" (trained R={trained})" if result["method"] == "dmo" and trained is not None else ""
+    items = [override_label(i) for i in settings.get("set") or ()]
+    # the head ranks the DMO's candidates alone (files older than the field: the --set item, else no head)
+    heads = [int(i.partition("=")[2]) for i in items if i.startswith("selection_scenes=")]
+    head = settings.get("selection_scenes", heads[-1] if heads else 0)
+    label += f" (selection head {head})" if head and result["method"] == "dmo" else ""
     recipe = settings.get("recipe") or "paper"
     own = recipe_settings(recipe, TrainConfig())
     inputs = settings.get("dmo_inputs") or own["dmo_inputs"]
     label += f" (inputs {inputs})" if result["method"] == "dmo" and inputs != own["dmo_inputs"] else ""
     variant, negatives = settings.get("variant") or "concat", settings.get("negatives") or "in-data+vae"
-    items = [override_label(i) for i in settings.get("set") or ()]
     cue = settings.get("depth_cue", "depth_cue=true" in items)  # (files older than the field: off unless set)
     if cue != recipe_head(recipe, HeadConfig(variant=variant)).depth_cue:
         label += " (depth cue)" if cue else " (no depth cue)"
@@ -60,7 +65,8 @@ def row_label(result: dict, settings: dict) -> str:
     label += "" if negatives == "in-data+vae" else f" ({negatives} negatives)"
     label += "" if recipe == "paper" else f" [{recipe}]"
     overrides = [item for item in items
-                 if not item.startswith(("dmo_inputs=", "depth_cue=", "ebm_mined_steps=", "image_size="))]
+                 if not item.startswith(("dmo_inputs=", "depth_cue=", "ebm_mined_steps=", "image_size=",
+                                         "selection_scenes="))]
     sizes = [item.partition("=")[2] for item in items if item.startswith("image_size=")]
     size = settings.get("image_size") or (sizes[-1] if sizes else IMAGE_SIZE_BEFORE.get(settings.get("preset")))
     overrides = sorted(overrides + ([f"image_size={size}"] if size else []))

@@ -131,7 +131,8 @@ def _settings(run: Run, preset: Preset) -> dict:
         return {}
     networks = run.networks(preset)
     return {**run.row_settings(), "dmo_inputs": networks.train.dmo_inputs, "depth_cue": networks.head.depth_cue,
-            "ebm_mined_steps": mined_steps(networks.train, run.negatives), "image_size": preset.image_size}
+            "ebm_mined_steps": mined_steps(networks.train, run.negatives), "image_size": preset.image_size,
+            "selection_scenes": networks.train.selection_scenes}
 
 
 def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:

@@ -107,17 +107,17 @@ def _bank_index(motions: jax.Array, bank: np.ndarray) -> np.ndarray:
 
 def train_selection(task_name: str, models, preset: Preset, train, path: Path, log=print) -> dict:
     """Fit (or load) the selection head of these networks on the first ``preset.train.selection_scenes``
-    scenes of the training split ``train`` (``envs.dataset.Split``), stored at ``path`` (named
+    scenes (all of them where there are fewer) of the training split ``train`` (``envs.dataset.Split``), stored at ``path`` (named
     after the networks and the scene count, ``RunPaths.selection``); returns its summary."""
     from envs.dataset import atomic_write_text
     from envs.evaluation import run_each_candidate
 
     from .data import network_image
 
-    scenes = preset.train.selection_scenes
     bank = np.asarray(train.motions, np.float32)
-    if not 1 <= scenes <= len(bank):
-        raise ValueError(f"selection_scenes must be in [1, {len(bank)}] (the training scenes), got {scenes}")
+    scenes = min(preset.train.selection_scenes, len(bank))
+    if scenes < 1:
+        raise ValueError(f"selection_scenes must be positive to fit a selection head, got {scenes}")
     stored = _stored(path, bank)
     if stored is not None:
         return {k: v for k, v in stored.items() if k not in ("weights", "fingerprint")}

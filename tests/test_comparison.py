@@ -116,6 +116,13 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
     assert row_label(dmo, {"recipe": "bank", "set": ["head.depth_cue=true"], "ebm_mined_steps": 200}) == \
         "dmo n=8 R=1 [bank]"
     assert row_label(dmo, {"recipe": "bank", "depth_cue": True}) == "dmo n=8 R=1 (no mined negatives) [bank]"
+    # a DMO ranked by a selection head is named by the head's training scenes (recorded, or the
+    # --set item in files older than the field); sort is not ranked by it, so it shares the energy's row
+    sort = {"method": "sort", "n": 8, "R": None}
+    assert row_label(dmo, {**bank, "selection_scenes": 300}) == "dmo n=8 R=1 (selection head 300) [bank]"
+    assert row_label(dmo, {**bank, "set": ["selection_scenes=100"]}) == "dmo n=8 R=1 (selection head 100) [bank]"
+    assert row_label(dmo, {**bank, "selection_scenes": 0}) == "dmo n=8 R=1 [bank]"
+    assert row_label(sort, {**bank, "selection_scenes": 300}) == row_label(sort, bank) == "sort n=8 [bank]"
     # two-stage scorings measured to choose what the full one chooses share its row; others do not
     assert row_label({**dmo, "coarse": [6, 32]}, bank) == row_label({**dmo, "coarse": [6, 64]}, bank) == \
         row_label({**dmo, "coarse": [4, 64]}, bank) == row_label({**dmo, "coarse": None}, bank) == "dmo n=8 R=1 [bank]"

@@ -166,21 +166,23 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
     summary = workflow.train_task(TASK, get_preset("tiny", recipe="bank"), data, work, log=lambda m: None)
     _check_summary(summary)
+    assert summary["selection"]["scenes"] == 20  # the recipe's 300, capped at the training split
     out = tmp_path / "bank.json"
     proc = _run("bin/evaluate", "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
                 "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend", "mujoco",
                 "--json", str(out))
-    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == ["sort n=2 [bank] {image_size=32}",
-                                                                           "dmo n=2 R=1 [bank] {image_size=32}"]
+    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [
+        "sort n=2 [bank] {image_size=32}", "dmo n=2 R=1 (selection head 300) [bank] {image_size=32}"]
     payload = json.loads(out.read_text())
     assert payload["settings"]["recipe"] == "bank"
     dmo = next(r for r in payload["results"] if r["method"] == "dmo")
     assert dmo["mean_start_error_m"] > 0 and dmo["mean_optimised_error_m"] > 0
     # one VAE; an EBM and a DMO per recipe (the bank's heads read the depth cue)
     nets = sorted(p.name for p in (work / TASK / "tiny" / "concat").iterdir())
-    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-mined8-cue"]
+    assert nets == ["dmo-R2", "dmo-R2-cue", "ebm-in-data+vae", "ebm-in-data+vae-near2of16-graded1cm-mined8-cue",
+                    "selection"]
     assert (data / TASK / "train" / neighbours.INDEX_FILE).is_file()
     # the bank EBM trained its last 8 steps on its own ranking of the bank, stored beside it
-    ebm_dir = work / TASK / "tiny" / "concat" / nets[-1]
+    ebm_dir = work / TASK / "tiny" / "concat" / nets[-2]
     assert np.load(ebm_dir / mining.INDEX_FILE).shape == (20, 16)
     assert json.loads((ebm_dir / mining.INFO_FILE).read_text())["step"] == 20

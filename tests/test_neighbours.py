@@ -176,11 +176,12 @@ def test_recipe_settings_and_their_errors():
     assert RECIPES == ("paper", "bank")
     cpu = get_preset("cpu", recipe="bank")
     assert (cpu.recipe, cpu.train.ebm_near_negatives, cpu.train.near_pool, cpu.train.ebm_target_scale,
-            cpu.train.ebm_mined_steps, cpu.train.dmo_inputs) == ("bank", 6, 16, 0.01, 200, "decoded")
+            cpu.train.ebm_mined_steps, cpu.train.dmo_inputs, cpu.train.selection_scenes) == \
+        ("bank", 6, 16, 0.01, 200, "decoded", 300)
     assert get_preset("paper").recipe == "paper" and get_preset("paper").train.ebm_near_negatives == 0
     paper = get_preset("cpu", recipe="paper").train
-    assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.ebm_mined_steps, paper.dmo_inputs) == \
-        (0, 0.0, 0, "decoded")
+    assert (paper.ebm_near_negatives, paper.ebm_target_scale, paper.ebm_mined_steps, paper.dmo_inputs,
+            paper.selection_scenes) == (0, 0.0, 0, "decoded", 0)
     with pytest.raises(ValueError, match="unknown recipe 'ibc'"):
         get_preset("cpu", recipe="ibc")
     with pytest.raises(ValueError, match="exceeds ebm_gt_negatives"):

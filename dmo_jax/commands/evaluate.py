@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> None:
                 "depth_cue": preset.head.depth_cue, "negatives": args.negatives,
                 "ebm_mined_steps": training.mined_steps(preset.train, args.negatives),
                 "dmo_train_steps": args.dmo_train_steps, "image_size": preset.image_size,
-                "set": args.set}  # what the rows are named by
+                "selection_scenes": preset.train.selection_scenes, "set": args.set}  # what the rows are named by
     by_row = {}  # row label ("dmo n=8 R=1") -> {task: result}, rows in the order they appear
     for name in names:
         try:

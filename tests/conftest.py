@@ -49,3 +49,18 @@ def trained(tmp_path_factory, worker_id):
 
     root, summary = built_once(tmp_path_factory, worker_id, "trained-reach_target", build)
     return root / "data", root / "runs", summary
+
+
+@pytest.fixture(scope="session")
+def trained_bank(trained, tmp_path_factory, worker_id):
+    """``(data, runs, summary)``: ``trained``'s data and networks, plus the bank recipe's EBM, DMO
+    and selection head trained beside them (sharing the VAE). Tests must not write into them."""
+    from dmo_jax import workflow
+    from dmo_jax.config import get_preset
+
+    def build(root):
+        data, work = shutil.copytree(trained[0], root / "data"), shutil.copytree(trained[1], root / "runs")
+        return workflow.train_task("reach_target", get_preset("tiny", recipe="bank"), data, work, log=lambda m: None)
+
+    root, summary = built_once(tmp_path_factory, worker_id, "trained-bank-reach_target", build)
+    return root / "data", root / "runs", summary

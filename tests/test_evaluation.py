@@ -159,12 +159,11 @@ def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down
     assert out["first_lowest_offset_m"] == pytest.approx(0.01, abs=1e-4)
 
 
-def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained, tmp_path):
+def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path):
     from dmo_jax import mining, neighbours
 
-    shared_data, shared_work, _ = trained  # beside the paper's recipe, trained there (in a copy: it is shared)
+    shared_data, shared_work, summary = trained_bank  # beside the paper's recipe (conftest.py; copied: shared)
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
-    summary = workflow.train_task(TASK, get_preset("tiny", recipe="bank"), data, work, log=lambda m: None)
     _check_summary(summary)
     assert summary["selection"]["scenes"] == 20  # the recipe's 300, capped at the training split
     out = tmp_path / "bank.json"

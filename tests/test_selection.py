@@ -31,12 +31,12 @@ def test_the_fit_learns_what_tells_success_apart_and_else_keeps_the_energys_choi
     np.testing.assert_array_equal(np.argsort(-scores, axis=1), np.argsort(energies, axis=1))
 
 
-def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained, tmp_path):
-    shared_data, shared_work, _ = trained  # copied: the fixture is shared
+def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, tmp_path):
+    shared_data, shared_work, summary = trained_bank  # the bank recipe fits a head (conftest.py)
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
-    preset = get_preset("tiny").with_overrides(["selection_scenes=3"])
-    first = workflow.train_task(TASK, preset, data, work, log=lambda m: None)["selection"]
-    assert first["scenes"] == 3 and 0 <= first["lowest_energy_succeeds"] <= first["some_candidate_succeeds"] <= 1
+    preset = get_preset("tiny", recipe="bank")
+    first = summary["selection"]
+    assert 0 <= first["lowest_energy_succeeds"] <= first["some_candidate_succeeds"] <= 1
     again = workflow.train_task(TASK, preset, data, work, log=lambda m: None)["selection"]
     assert again == first  # loaded, not fitted again
 
@@ -56,7 +56,7 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained, tmp_pa
     sort = inference.predict(models, image, bank, key, preset=preset, method="sort", n=2)
     assert np.all(np.diff(np.asarray(sort.energies)) >= 0)  # sort still by energy
 
-    other = get_preset("tiny").with_overrides(["selection_scenes=2"])
+    other = preset.with_overrides(["selection_scenes=2"])
     with pytest.raises(ValueError, match="no selection head.*train it first"):
         workflow.load_models(work, TASK, other, "dmo", bank=bank)
     assert workflow.load_models(work, TASK, other, "sort", bank=bank).selection is None

@@ -195,7 +195,8 @@ BANK_MINED_FRACTION = 0.4
 #: The bank recipe's ``selection_scenes``: the DMO's candidates are ranked by the selection head
 #: fitted on this many executed training scenes (fewer where the training split is smaller). On
 #: the nine tasks x 300 test scenes it solved 91.8 % against 89.7 % ranked by energy, on the same
-#: networks (BENCHMARKS.md, "Choosing among the DMO's candidates").
+#: networks; fitted on 100 scenes, take_plate's solved 87 % against 92 % (BENCHMARKS.md, "A learned
+#: choice among the candidates", "The head as the recipe's default").
 BANK_SELECTION_SCENES = 300
 
 

@@ -195,8 +195,9 @@ BANK_MINED_FRACTION = 0.4
 #: The bank recipe's ``selection_scenes``: the DMO's candidates are ranked by the selection head
 #: fitted on this many executed training scenes (fewer where the training split is smaller). On
 #: the nine tasks x 300 test scenes it solved 91.8 % against 89.7 % ranked by energy, on the same
-#: networks; fitted on 100 scenes, take_plate's solved 87 % against 92 % (BENCHMARKS.md, "A learned
-#: choice among the candidates", "The head as the recipe's default").
+#: networks. On take_plate, fitted on 100 scenes it solved 87 % against 92 %, on all 1,000 92 % at
+#: four times the cost (BENCHMARKS.md, "A learned choice among the candidates", "The head as the
+#: recipe's default").
 BANK_SELECTION_SCENES = 300
 
 

@@ -107,8 +107,9 @@ def _bank_index(motions: jax.Array, bank: np.ndarray) -> np.ndarray:
 
 def train_selection(task_name: str, models, preset: Preset, train, path: Path, log=print) -> dict:
     """Fit (or load) the selection head of these networks on the first ``preset.train.selection_scenes``
-    scenes (all of them where there are fewer) of the training split ``train`` (``envs.dataset.Split``), stored at ``path`` (named
-    after the networks and the scene count, ``RunPaths.selection``); returns its summary."""
+    scenes (all of them where there are fewer) of the training split ``train``
+    (``envs.dataset.Split``), stored at ``path`` (named after the networks and the scene count,
+    ``RunPaths.selection``); returns its summary."""
     from envs.dataset import atomic_write_text
     from envs.evaluation import run_each_candidate
 

@@ -51,8 +51,10 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     pooled = ebm.pooled(models.ebm, ebm.encode(models.ebm, image), dmo.candidates)
     scores = np.asarray(selection.selection_scores(models.selection, pooled, dmo.energies))
     assert np.all(np.diff(scores) <= 1e-5)  # best first by the head's score
-    by_energy = inference.predict(models._replace(selection=None), image, bank, key, preset=preset, method="dmo", n=2, R=1)
-    np.testing.assert_allclose(np.sort(dmo.energies), by_energy.energies, rtol=1e-5, atol=1e-5)  # same candidates, same energies
+    # the same candidates and energies as ranked by energy
+    by_energy = inference.predict(models._replace(selection=None), image, bank, key, preset=preset, method="dmo",
+                                  n=2, R=1)
+    np.testing.assert_allclose(np.sort(dmo.energies), by_energy.energies, rtol=1e-5, atol=1e-5)
     sort = inference.predict(models, image, bank, key, preset=preset, method="sort", n=2)
     assert np.all(np.diff(np.asarray(sort.energies)) >= 0)  # sort still by energy
 
@@ -60,5 +62,6 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     with pytest.raises(ValueError, match="no selection head.*train it first"):
         workflow.load_models(work, TASK, other, "dmo", bank=bank)
     assert workflow.load_models(work, TASK, other, "sort", bank=bank).selection is None
-    stored = json.loads(workflow.RunPaths.of(work, TASK, preset).selection(preset, "in-data+vae", preset.train.dmo_train_steps).read_text())
+    path = workflow.RunPaths.of(work, TASK, preset).selection(preset, "in-data+vae", preset.train.dmo_train_steps)
+    stored = json.loads(path.read_text())
     assert len(stored["weights"]) == preset.head.width + 1

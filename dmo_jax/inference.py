@@ -46,7 +46,7 @@ from .checks import check_arrays, check_params, is_concrete, is_integer
 from .config import CoarseRanking, Preset, get_preset
 from .losses import dmo_unroll
 from .networks import DMONet, EBMNet
-from .selection import selection_scores
+from .selection import PHASES, selection_scores
 from .vae import VAENet
 
 
@@ -71,7 +71,7 @@ class Models(NamedTuple):
     ebm: Any
     dmo: Any = None
     vae: Any = None
-    selection: Any = None  # the DMO's selection head, weights [w + 1] (dmo_jax.selection); None: by energy
+    selection: Any = None  # the DMO's selection head, weights [PHASES * w + 1] (dmo_jax.selection); None: by energy
 
 
 class Ranking(NamedTuple):
@@ -343,9 +343,10 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
     # the starts keep their bank-scoring energies: only the optimised motions are scored here
     cands = jnp.concatenate([start, new])
     if models.selection is not None and METHOD_REGISTRY[method].selected:
-        pooled = ebm.pooled(models.ebm, f_ebm, cands)  # one pass gives the head's input and the new energies
+        # one pass gives the head's input and the new energies
+        pooled, phases = ebm.pooled_and_phases(models.ebm, f_ebm, cands, PHASES)
         energies = jnp.concatenate([start_energy, ebm.energy_of_pooled(models.ebm, pooled[start.shape[0]:])])
-        order = jnp.argsort(-selection_scores(models.selection, pooled, energies))
+        order = jnp.argsort(-selection_scores(models.selection, phases, energies))
     else:
         energies = jnp.concatenate([start_energy, chunked_energy(ebm, models.ebm, f_ebm, new, chunk)]) \
             if new.shape[0] else start_energy

@@ -314,13 +314,21 @@ class EBM(_ImageMotionModule):
     def pooled(self, feature, motions, pose=None, deterministic: bool = True):
         """The head's tokens averaged over each motion, what the energy is read from:
         ``F [H, W, w]``, ``motions [..., T, 11]`` -> ``[..., w]``."""
+        return self.pooled_and_phases(feature, motions, 0, pose, deterministic)[0]
+
+    def pooled_and_phases(self, feature, motions, phases: int, pose=None, deterministic: bool = True):
+        """:meth:`pooled` and, from the same pass, the pose tokens averaged over each of ``phases``
+        consecutive, nearly equal parts of the motion, ``[..., phases, w]`` (None for 0)."""
         _check_feature(feature, self.preset.head)
         flat, lead = _flatten_motions(motions, any_length=True)
         if pose is not None:
             pose = pose.reshape(flat.shape[:2] + pose.shape[-1:])
-        tokens, _ = self.trunk(feature, flat, deterministic, pose)
-        pooled = jnp.mean(tokens, axis=-2)
-        return pooled.reshape(lead + pooled.shape[-1:])
+        tokens, pose_tokens = self.trunk(feature, flat, deterministic, pose)
+        pooled = jnp.mean(tokens, axis=-2).reshape(lead + tokens.shape[-1:])
+        if not phases:
+            return pooled, None
+        parts = jnp.stack([jnp.mean(p, axis=-2) for p in jnp.array_split(pose_tokens, phases, axis=-2)], axis=-2)
+        return pooled, parts.reshape(lead + parts.shape[-2:])
 
     def pose_activations(self, motions, deterministic: bool = True):
         """``motions [..., T, 11]`` -> the head's activations that do not depend on the image,
@@ -440,6 +448,11 @@ class EBMNet(_Net):
         """``F [H, W, w]``, ``motions [..., 101, 11]`` -> ``[..., w]``: the head's tokens averaged
         over each motion (the energy is an MLP of them)."""
         return self._apply(params, "pooled", feature, motions, None, train=False, rng=None)
+
+    def pooled_and_phases(self, params, feature, motions, phases: int):
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> :meth:`pooled` ``[..., w]`` and the pose
+        tokens averaged over ``phases`` consecutive parts of each motion ``[..., phases, w]``."""
+        return self._apply(params, "pooled_and_phases", feature, motions, phases, None, train=False, rng=None)
 
     def energy_of_pooled(self, params, pooled):
         """:meth:`pooled` tokens ``[..., w]`` -> their energies ``[...]``, equal to :meth:`energy`'s."""

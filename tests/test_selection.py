@@ -17,17 +17,17 @@ TASK = "reach_target"  # the task of the shared `trained` fixture (conftest.py)
 
 def test_the_fit_learns_what_tells_success_apart_and_else_keeps_the_energys_choice():
     rng = np.random.default_rng(0)
-    m, k, w = 80, 6, 4
-    pooled, energies = rng.normal(size=(m, k, w)), rng.normal(size=(m, k))
-    success = pooled[..., 2] > 0.8  # the lowest energy knows nothing of it
-    weights = selection.fit_weights(pooled, energies, success)
-    chosen = np.argmax(np.asarray(selection.selection_scores(weights, pooled, energies)), axis=1)
+    m, k, p, w = 80, 6, 3, 4
+    phases, energies = rng.normal(size=(m, k, p, w)), rng.normal(size=(m, k))
+    success = phases[..., 1, 2] > 0.8  # what one phase says; the lowest energy knows nothing of it
+    weights = selection.fit_weights(phases, energies, success)
+    chosen = np.argmax(np.asarray(selection.selection_scores(weights, phases, energies)), axis=1)
     by_energy = np.argmin(energies, axis=1)
     rows = np.arange(m)
     assert success[rows, chosen].mean() > success[rows, by_energy].mean() + 0.3
     # scenes where all or none succeed carry no choice: the energy's ranking stays
-    weights = selection.fit_weights(pooled, energies, np.tile(rows[:, None] % 2 == 0, (1, k)))
-    scores = np.asarray(selection.selection_scores(weights, pooled, energies))
+    weights = selection.fit_weights(phases, energies, np.tile(rows[:, None] % 2 == 0, (1, k)))
+    scores = np.asarray(selection.selection_scores(weights, phases, energies))
     np.testing.assert_array_equal(np.argsort(-scores, axis=1), np.argsort(energies, axis=1))
 
 
@@ -42,14 +42,16 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
 
     bank = np.asarray(load_split(data, TASK, "train").motions, np.float32)
     models = workflow.load_models(work, TASK, preset, ["sort", "dmo"], bank=bank)
-    assert models.selection.shape == (preset.head.width + 1,) and np.all(np.isfinite(models.selection))
+    width = selection.PHASES * preset.head.width
+    assert models.selection.shape == (width + 1,) and np.all(np.isfinite(models.selection))
     test = load_split(data, TASK, "test")
     image = network_image(test.rgb[:1], test.depth[:1])[0]
     key = jax.random.key(0)
     dmo = inference.predict(models, image, bank, key, preset=preset, method="dmo", n=2, R=1)
     ebm = EBMNet(preset)
-    pooled = ebm.pooled(models.ebm, ebm.encode(models.ebm, image), dmo.candidates)
-    scores = np.asarray(selection.selection_scores(models.selection, pooled, dmo.energies))
+    feature = ebm.encode(models.ebm, image)
+    _, phases = ebm.pooled_and_phases(models.ebm, feature, dmo.candidates, selection.PHASES)
+    scores = np.asarray(selection.selection_scores(models.selection, phases, dmo.energies))
     assert np.all(np.diff(scores) <= 1e-5)  # best first by the head's score
     # the same candidates and energies as ranked by energy
     by_energy = inference.predict(models._replace(selection=None), image, bank, key, preset=preset, method="dmo",
@@ -64,4 +66,8 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     assert workflow.load_models(work, TASK, other, "sort", bank=bank).selection is None
     path = workflow.RunPaths.of(work, TASK, preset).selection(preset, "in-data+vae", preset.train.dmo_train_steps)
     stored = json.loads(path.read_text())
-    assert len(stored["weights"]) == preset.head.width + 1
+    assert len(stored["weights"]) == width + 1 and stored["phases"] == selection.PHASES
+    # a head stored with another feature layout is not loaded but fitted again
+    path.write_text(json.dumps({**stored, "phases": 1}))
+    with pytest.raises(ValueError, match="no selection head"):
+        workflow.load_models(work, TASK, preset, "dmo", bank=bank)

@@ -28,7 +28,8 @@ def row_label(result: dict, settings: dict) -> str:
     """``dmo n=8 R=1``, ``sort n=8``, ``nearest``: a result's row (``(coarse 4/32)`` after a
     two-stage bank scoring other than those of ``SAME_AS_FULL``, which share the full scoring's
     row); a DMO trained with a non-default number of unrolled steps (Ours-1, Ours-5) gets ``(trained R=k)`` after it,
-    one whose candidates a selection head ranks ``(selection head 300)`` (its training scenes), one trained on other
+    one whose candidates a selection head ranks ``(selection head 300, 8 phases)`` (its training scenes and the
+    parts of the motion it reads; files older than the phases: ``(selection head 300)``), one trained on other
     inputs than its recipe's ``(inputs offset)``, heads that read the depth cue where their
     recipe does not, or the reverse (``(depth cue)``, ``(no depth cue)``), an EBM trained on its own ranking of
     the bank where its recipe's is not, or the reverse (``(mined negatives)``, ``(no mined negatives)``),
@@ -48,7 +49,9 @@ def row_label(result: dict, settings: dict) -> str:
     # the head ranks the DMO's candidates alone (files older than the field: the --set item, else no head)
     heads = [int(i.partition("=")[2]) for i in items if i.startswith("selection_scenes=")]
     head = settings.get("selection_scenes", heads[-1] if heads else 0)
-    label += f" (selection head {head})" if head and result["method"] == "dmo" else ""
+    phases = settings.get("selection_phases", 1)
+    if head and result["method"] == "dmo":
+        label += f" (selection head {head}" + ("" if phases == 1 else f", {phases} phases") + ")"
     recipe = settings.get("recipe") or "paper"
     own = recipe_settings(recipe, TrainConfig())
     inputs = settings.get("dmo_inputs") or own["dmo_inputs"]

@@ -125,6 +125,7 @@ def _record(result: dict, run: Run, preset: Preset) -> dict:
 def _settings(run: Run, preset: Preset) -> dict:
     """What the rows of ``run`` on ``preset`` are made with (``comparison.row_label`` names them by it;
     rows of older files, which record no ``image_size``, differ from it and are remade)."""
+    from .selection import PHASES
     from .training import mined_steps
 
     if run.recipe is None:
@@ -132,7 +133,7 @@ def _settings(run: Run, preset: Preset) -> dict:
     networks = run.networks(preset)
     return {**run.row_settings(), "dmo_inputs": networks.train.dmo_inputs, "depth_cue": networks.head.depth_cue,
             "ebm_mined_steps": mined_steps(networks.train, run.negatives), "image_size": preset.image_size,
-            "selection_scenes": networks.train.selection_scenes}
+            "selection_scenes": networks.train.selection_scenes, "selection_phases": PHASES}
 
 
 def load_table(path: Path, preset: Preset, episodes: int) -> dict | None:

@@ -117,8 +117,11 @@ def test_networks_trained_with_other_settings_get_rows_of_their_own(tmp_path):
         "dmo n=8 R=1 [bank]"
     assert row_label(dmo, {"recipe": "bank", "depth_cue": True}) == "dmo n=8 R=1 (no mined negatives) [bank]"
     # a DMO ranked by a selection head is named by the head's training scenes (recorded, or the
-    # --set item in files older than the field); sort is not ranked by it, so it shares the energy's row
+    # --set item in files older than the field) and the parts of the motion it reads (files older
+    # than that field: the mean over the whole motion); sort is not ranked by it, so it shares the energy's row
     sort = {"method": "sort", "n": 8, "R": None}
+    assert row_label(dmo, {**bank, "selection_scenes": 300, "selection_phases": 8}) == \
+        "dmo n=8 R=1 (selection head 300, 8 phases) [bank]"
     assert row_label(dmo, {**bank, "selection_scenes": 300}) == "dmo n=8 R=1 (selection head 300) [bank]"
     assert row_label(dmo, {**bank, "set": ["selection_scenes=100"]}) == "dmo n=8 R=1 (selection head 100) [bank]"
     assert row_label(dmo, {**bank, "selection_scenes": 0}) == "dmo n=8 R=1 [bank]"

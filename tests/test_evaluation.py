@@ -171,7 +171,7 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path)
                 "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend", "mujoco",
                 "--json", str(out))
     assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [
-        "sort n=2 [bank] {image_size=32}", "dmo n=2 R=1 (selection head 300) [bank] {image_size=32}"]
+        "sort n=2 [bank] {image_size=32}", "dmo n=2 R=1 (selection head 300, 8 phases) [bank] {image_size=32}"]
     payload = json.loads(out.read_text())
     assert payload["settings"]["recipe"] == "bank"
     dmo = next(r for r in payload["results"] if r["method"] == "dmo")

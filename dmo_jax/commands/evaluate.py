@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> None:
         else:  # created when the first picture is written
             check_writable_dir(viz.resolve().parent, f"directory {viz.resolve().parent} (for --save-viz {viz})")
 
-    from dmo_jax import training
+    from dmo_jax import selection, training
     from dmo_jax.comparison import row_label
     from dmo_jax.config import get_preset
     from dmo_jax.evaluation import evaluate_methods
@@ -122,7 +122,8 @@ def main(argv: list[str] | None = None) -> None:
                 "depth_cue": preset.head.depth_cue, "negatives": args.negatives,
                 "ebm_mined_steps": training.mined_steps(preset.train, args.negatives),
                 "dmo_train_steps": args.dmo_train_steps, "image_size": preset.image_size,
-                "selection_scenes": preset.train.selection_scenes, "set": args.set}  # what the rows are named by
+                "selection_scenes": preset.train.selection_scenes, "selection_phases": selection.PHASES,
+                "set": args.set}  # what the rows are named by
     by_row = {}  # row label ("dmo n=8 R=1") -> {task: result}, rows in the order they appear
     for name in names:
         try:

@@ -35,10 +35,9 @@ from .data import motions_fingerprint
 #: cross-validation on take_plate's first 300 training scenes the selected candidate succeeded
 #: in 88-89 % of them for any pull from 0.003 to 0.3 (85 % by energy), 86 % at 1.
 L2 = 0.03
-#: Parts of the motion over which the head averages the EBM's pose tokens. On take_plate's 300
-#: test scenes, with the head fitted on 300 (1,000) training scenes, the chosen candidate
-#: succeeded in 91.7 (92.3) % with the mean over the whole motion, 93.7 (94.3) % with 4 parts and
-#: 93.0 (95.0) % with 8.
+#: Parts of the motion over which the head averages the EBM's pose tokens (BENCHMARKS.md, "The head
+#: reads the motion in eight parts", against the mean over the whole motion). 2, 4 and 16 parts,
+#: fitted to the same executed candidates of take_plate and put_umbrella, chose no better than 8.
 PHASES = 8
 _FIT_STEPS, _FIT_RATE = 2000, 0.05
 

@@ -444,18 +444,15 @@ class EBMNet(_Net):
         ``pose``: the motions' :meth:`pose_activations` (equal energies to float rounding)."""
         return self._apply(params, "energy", feature, motions, pose, train=train, rng=rng)
 
-    def pooled(self, params, feature, motions):
-        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> ``[..., w]``: the head's tokens averaged
-        over each motion (the energy is an MLP of them)."""
-        return self._apply(params, "pooled", feature, motions, None, train=False, rng=None)
-
     def pooled_and_phases(self, params, feature, motions, phases: int):
-        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> :meth:`pooled` ``[..., w]`` and the pose
-        tokens averaged over ``phases`` consecutive parts of each motion ``[..., phases, w]``."""
+        """``F [H, W, w]``, ``motions [..., 101, 11]`` -> the head's tokens averaged over each motion
+        ``[..., w]`` (the energy is an MLP of them) and its pose tokens averaged over each of
+        ``phases`` consecutive parts of the motion ``[..., phases, w]``, from one pass."""
         return self._apply(params, "pooled_and_phases", feature, motions, phases, None, train=False, rng=None)
 
     def energy_of_pooled(self, params, pooled):
-        """:meth:`pooled` tokens ``[..., w]`` -> their energies ``[...]``, equal to :meth:`energy`'s."""
+        """The tokens averaged over each motion ``[..., w]`` (:meth:`pooled_and_phases`) -> their
+        energies ``[...]``, equal to :meth:`energy`'s."""
         return self._apply(params, "energy_of_pooled", pooled, train=False, rng=None)
 
     def pose_activations(self, params, motions):

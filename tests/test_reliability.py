@@ -447,8 +447,9 @@ _TRAIN = r"""
 import dataclasses, sys, time
 from pathlib import Path
 sys.path[:0] = [sys.argv[1], sys.argv[1] + "/tests"]
-from envs.platform import setup
+from envs.platform import enable_compilation_cache, setup
 setup()
+enable_compilation_cache()  # the suite's, shared with the other tests (conftest.py)
 import jax, numpy as np
 from dmo_jax import data as data_lib, training
 from dmo_jax.config import get_preset
@@ -550,10 +551,9 @@ def _steps_logged(workdir):
 
 
 def test_training_killed_three_times_resumes_to_the_uninterrupted_parameters(tmp_path):
-    # Compiling at XLA's lowest back-end optimisation level, with a persistent compilation
-    # cache shared by the five processes, keeps each under ~10 s; every run uses the same flags.
-    env = {**os.environ, "XLA_FLAGS": "--xla_backend_optimization_level=0",
-           "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "xla_cache"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    # The five processes inherit the suite's XLA flags and compilation cache (conftest.py), so
+    # the first compiles what the others load; every run uses the same flags.
+    env = dict(os.environ)
     full = _train_process(tmp_path / "full", "run", tmp_path / "full.npz", env)
     full.communicate(timeout=600)
     assert full.returncode == 0, full.log.read_text()[-3000:]

@@ -295,7 +295,8 @@ print(json.dumps({"loss_one": out["one"][1], "loss_two": out["two"][1], "grad_sc
 
 
 def test_two_device_step_equals_one_device_step(tmp_path):
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    # the suite's XLA flags (conftest.py) and two host devices
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
     proc = subprocess.run([sys.executable, "-c", _TWO_DEVICES, str(ROOT)], env=env,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -11,6 +11,7 @@ Variants (paper Table 2) are chosen with ``preset.with_variant(name)`` or
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -334,8 +335,27 @@ def override_label(item: str) -> str:
     return f"{name}={text}" if _override_target(name) == (section, name) else item
 
 
-#: The image size each preset had before checkpoints and results files recorded it (``cpu`` is now 96).
+#: The image size each preset had before results files recorded it (``cpu`` is now 96).
 IMAGE_SIZE_BEFORE = {"tiny": 32, "cpu": 64, "paper": 256}
+
+
+def preset_record(preset: Preset) -> dict:
+    """``preset`` resolved to JSON types (nested dicts, tuples as lists): what each checkpoint
+    records of the settings it was trained with (``bin/evaluate --show-preset``)."""
+    return json.loads(json.dumps(dataclasses.asdict(preset)))
+
+
+def record_differences(saved: dict, current: dict, prefix: str = "") -> list[str]:
+    """``"section.field: saved -> current"`` for every field where two :func:`preset_record`
+    records differ (a field only one has reads ``-`` in the other)."""
+    lines = []
+    for key in dict.fromkeys([*saved, *current]):
+        a, b = saved.get(key, "-"), current.get(key, "-")
+        if isinstance(a, dict) and isinstance(b, dict):
+            lines += record_differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            lines.append(f"{prefix}{key}: {a!r} -> {b!r}")
+    return lines
 
 PAPER = Preset(name="paper", image_size=256)
 

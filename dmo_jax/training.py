@@ -29,7 +29,7 @@ from jax.sharding import PartitionSpec as P
 from envs.progress import Progress
 
 from . import losses, run_metrics
-from .config import IMAGE_SIZE_BEFORE, Preset, TrainConfig
+from .config import Preset, TrainConfig, preset_record
 from .data import MotionDataset, augment_batch
 from .networks import DMONet, EBMNet
 from .vae import VAENet
@@ -141,7 +141,8 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
         return evaluate(params, jnp.asarray(heldout.motions))
 
     return ModelSpec("vae", init_fn, loss_fn, eval_fn if heldout is not None else None,
-                     cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name}, cfg)
+                     cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name, "config": preset_record(preset)},
+                     cfg)
 
 
 #: The held-out ranking's negatives: the paper's counts, whatever the preset trains with.
@@ -216,7 +217,8 @@ def ebm_spec(preset: Preset, negatives: str = "in-data+vae", heldout: MotionData
                      cfg.ebm_steps + mined_steps(cfg, negatives), cfg.ebm_batch,
                      {"model": "ebm", "preset": preset.name, "variant": preset.variant, **_head_meta(preset),
                       "negatives": negatives, "near_negatives": near_meta, "target_scale": cfg.ebm_target_scale,
-                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives]},
+                      "negative_counts": [cfg.ebm_gt_negatives, cfg.ebm_vae_negatives],
+                      "config": preset_record(preset)},
                      cfg, near_meta[1])
 
 
@@ -258,7 +260,9 @@ def dmo_spec(preset: Preset, train_steps: int | None = None, heldout: MotionData
     return ModelSpec("dmo", net.init, loss_fn, eval_fn if heldout is not None else None, cfg.dmo_steps,
                      cfg.dmo_batch, {"model": "dmo", "preset": preset.name, "variant": preset.variant,
                                      **_head_meta(preset),
-                                     "train_iters": r, "inputs": cfg.dmo_inputs}, cfg)
+                                     "train_iters": r, "inputs": cfg.dmo_inputs,
+                                     "config": preset_record(dataclasses.replace(
+                                         preset, train=dataclasses.replace(cfg, dmo_train_steps=r)))}, cfg)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -294,42 +298,11 @@ def _head_meta(preset: Preset) -> dict:
     return {"depth_cue": head.depth_cue, "depth_cue_range": head.depth_cue_range, "image_size": preset.image_size}
 
 
-#: Meta of checkpoints written before a field existed: the value they were made with.
-_META_BEFORE = {"depth_cue": False, "depth_cue_range": 0.0, "near_negatives": [0, 0],
-                "target_scale": 0.0,
-                "inputs": "decoded"}
-
-
-#: Meta fields older checkpoints lack with no one value they were made with (their preset's): not checked there.
-_META_UNKNOWN_BEFORE = ("negative_counts", "task")
-
-
-def _without_removed_settings(saved: dict, path: Path) -> dict:
-    """``saved`` without what older checkpoints record of settings since removed: the pose MLP's
-    depth rescaling (``pose_z``: offset, scale) and the EBM's depth negatives (the third of
-    ``negative_counts``). Raises :class:`TrainingError` for a checkpoint trained with one of them
-    on, which this code cannot reproduce."""
-    saved, used = dict(saved), []
-    pose_z = saved.pop("pose_z", [0.0, 1.0])
-    if pose_z != [0.0, 1.0]:
-        used.append(f"pose_z_offset, pose_z_scale = {pose_z}")
-    counts = saved.get("negative_counts")
-    if isinstance(counts, list) and len(counts) == 3:
-        saved["negative_counts"] = counts[:2]
-        if counts[2]:
-            used.append(f"ebm_depth_negatives = {counts[2]}")
-    if used:
-        raise TrainingError(f"checkpoint at {path} was trained with settings this code no longer has "
-                            f"({'; '.join(used)}); retrain it in another --workdir")
-    return saved
-
-
 def _check_meta(saved: dict, expected: dict, path: Path) -> None:
-    saved = {**_META_BEFORE, **_without_removed_settings(saved, path)}
-    if "image_size" not in saved and saved.get("preset") in IMAGE_SIZE_BEFORE:
-        saved["image_size"] = IMAGE_SIZE_BEFORE[saved["preset"]]
-    diff = {k: (saved.get(k), v) for k, v in expected.items()
-            if saved.get(k) != v and not (k in _META_UNKNOWN_BEFORE and k not in saved)}
+    """Raise unless ``saved`` holds every ``expected`` setting that decides what a checkpoint
+    computes. The whole preset it records (``"config"``) is not compared: more steps continue a
+    run, and prediction settings such as the bank's coarse scoring change no network."""
+    diff = {k: (saved.get(k), v) for k, v in expected.items() if k != "config" and saved.get(k) != v}
     if diff:
         detail = ", ".join(f"{k}: checkpoint has {a!r}, expected {b!r}" for k, (a, b) in diff.items())
         raise TrainingError(f"checkpoint at {path} was made with other settings ({detail}); "
@@ -349,34 +322,44 @@ def _restore(mngr: ocp.CheckpointManager, step: int, args, path: Path):
 
 
 def _check_data(saved: dict, fingerprint: str | None, path: Path) -> None:
-    """Raise unless the checkpoint's training data (``saved["dataset"]["fingerprint"]``, absent in
-    checkpoints written before it was recorded) is the data of ``fingerprint`` (None: not checked)."""
+    """Raise unless the checkpoint's training data (``saved["dataset"]["fingerprint"]``) is the data
+    of ``fingerprint`` (None: not checked)."""
     had = (saved.get("dataset") or {}).get("fingerprint")
-    if fingerprint is not None and had is not None and had != fingerprint:
+    if fingerprint is not None and had != fingerprint:
         raise TrainingError(f"checkpoint at {path} was trained on other data (training motions {had}, these are "
                             f"{fingerprint}); use another --workdir or the data it was trained on")
+
+
+def _latest(workdir: str | Path) -> tuple[ocp.CheckpointManager, int, Path, dict]:
+    """The checkpoint manager, latest step, directory and metadata of the run in ``workdir``."""
+    path = Path(workdir) / "checkpoints"
+    mngr = _checkpoint_manager(path, 1) if path.is_dir() else None
+    step = None if mngr is None else mngr.latest_step()
+    if step is None:
+        raise TrainingError(f"no checkpoint in {path}: train this model first (bin/train_all)")
+    return mngr, step, path, _restore(mngr, step, ocp.args.Composite(meta=ocp.args.JsonRestore()), path)["meta"]
+
+
+def load_meta(workdir: str | Path) -> dict:
+    """The metadata of the latest checkpoint of the run in ``workdir`` (the directory given to
+    :func:`fit`), unchecked: the settings it was trained with (``"config"``: the whole preset,
+    :func:`dmo_jax.config.preset_record`), its data and step count."""
+    return _latest(workdir)[3]
 
 
 def load_params(workdir: str | Path, spec: ModelSpec, data_fingerprint: str | None = None):
     """Parameters and metadata of the latest checkpoint of the run in ``workdir`` (the directory
     given to :func:`fit`), checked against ``spec.meta`` and, when given, against the
     fingerprint of the training motions (``data.motions_fingerprint``) it must have learnt from."""
-    path = Path(workdir) / "checkpoints"
-    if not path.is_dir():
-        raise TrainingError(f"no checkpoint in {path}: train this model first (bin/train_all)")
-    mngr = _checkpoint_manager(path, 1)
-    step = mngr.latest_step()
-    if step is None:
-        raise TrainingError(f"no checkpoint in {path}")
-    restored = _restore(mngr, step, ocp.args.Composite(meta=ocp.args.JsonRestore()), path)
-    _check_meta(restored["meta"], spec.meta, path)
-    _check_data(restored["meta"], data_fingerprint, path)
+    mngr, step, path, meta = _latest(workdir)
+    _check_meta(meta, spec.meta, path)
+    _check_data(meta, data_fingerprint, path)
     abstract = jax.eval_shape(spec.init_fn, jax.random.key(0))
     state = _restore(mngr, step, ocp.args.Composite(
         state=ocp.args.PyTreeRestore(item={"params": abstract},
                                      restore_args=jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), {"params": abstract}),
                                      partial_restore=True)), path)
-    return jax.tree.map(jnp.asarray, state["state"]["params"]), restored["meta"]
+    return jax.tree.map(jnp.asarray, state["state"]["params"]), meta
 
 
 def fit(

@@ -191,13 +191,12 @@ def _of_task(spec: training.ModelSpec, task_name: str) -> training.ModelSpec:
     return dataclasses.replace(spec, meta={**spec.meta, "task": task_name})
 
 
-def load_models(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
-                dmo_train_steps: int | None = None, bank: np.ndarray | None = None):
-    """The trained networks ``method`` (a method name or a list of them) needs
-    (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
-    ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
-    preset, other settings, or (given the training motions ``bank [N, 101, 11]``) other data."""
-    from .inference import METHOD_REGISTRY, METHODS, Models
+def network_runs(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
+                 dmo_train_steps: int | None = None) -> dict[str, tuple[Path, training.ModelSpec]]:
+    """The run directory and spec of each network ``method`` (a method name or a list of them)
+    needs, by network name (``"ebm"``, then ``"dmo"``, ``"vae"``), in ``bin/train_all``'s work
+    directory."""
+    from .inference import METHOD_REGISTRY, METHODS
 
     methods = (method,) if isinstance(method, str) else tuple(method)
     unknown = [m for m in methods if m not in METHODS]
@@ -206,21 +205,56 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
     if not isinstance(preset, Preset):
         raise ValueError(f"preset must be a dmo_jax.config.Preset (dmo_jax.get_preset(name)), got {preset!r}")
     paths = RunPaths.of(workdir, task_name, preset)
-    data = None if bank is None else motions_fingerprint(bank)
-    load = lambda path, spec: training.load_params(path, _of_task(spec, task_name), data)[0]
-    ebm = load(paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))
-    dmo = vae = None
     needs = {net for m in methods for net in METHOD_REGISTRY[m].needs}
+    r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
+    runs = {"ebm": (paths.ebm(preset, negatives), training.ebm_spec(preset, negatives))}
     if "dmo" in needs:
-        r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
-        dmo = load(paths.dmo(preset, r), training.dmo_spec(preset, r))
+        runs["dmo"] = (paths.dmo(preset, r), training.dmo_spec(preset, r))
     if "vae" in needs:
-        vae = load(paths.vae(), training.vae_spec(preset))
+        runs["vae"] = (paths.vae(), training.vae_spec(preset))
+    return {net: (path, _of_task(spec, task_name)) for net, (path, spec) in runs.items()}
+
+
+def describe_networks(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
+                      dmo_train_steps: int | None = None) -> str:
+    """For each network ``method`` needs: its run directory and where the preset its checkpoint
+    recorded differs from ``preset`` (``bin/evaluate --show-preset``)."""
+    from .config import preset_record, record_differences
+
+    lines = []
+    for net, (path, _) in network_runs(workdir, task_name, preset, method, negatives, dmo_train_steps).items():
+        try:
+            saved = training.load_meta(path).get("config")
+        except training.TrainingError as err:
+            lines.append(f"{net} {path}: {err}")
+            continue
+        if saved is None:
+            lines.append(f"{net} {path}: its checkpoint records no preset (written before checkpoints did)")
+            continue
+        diff = record_differences(saved, preset_record(preset))
+        lines.append(f"{net} {path}: " + ("trained with this preset" if not diff else
+                                          "trained with this preset except (checkpoint -> now) " + "; ".join(diff)))
+    return "\n".join(lines)
+
+
+def load_models(workdir, task_name: str, preset: Preset, method, negatives: str = "in-data+vae",
+                dmo_train_steps: int | None = None, bank: np.ndarray | None = None):
+    """The trained networks ``method`` (a method name or a list of them) needs
+    (``dmo_jax.inference.Models``), from ``bin/train_all``'s work directory; raises
+    ``training.TrainingError`` naming what is missing or mismatched: networks of another task or
+    preset, other settings, or (given the training motions ``bank [N, 101, 11]``) other data."""
+    from .inference import METHOD_REGISTRY, Models
+
+    runs = network_runs(workdir, task_name, preset, method, negatives, dmo_train_steps)
+    data = None if bank is None else motions_fingerprint(bank)
+    nets = {net: training.load_params(path, spec, data)[0] for net, (path, spec) in runs.items()}
     selection = None
+    methods = (method,) if isinstance(method, str) else tuple(method)
     if preset.train.selection_scenes and any(METHOD_REGISTRY[m].selected for m in methods):
         from .selection import load_weights
 
         if bank is None:
             raise ValueError("load_models: a selection head is loaded only with the training motions (bank)")
-        selection = load_weights(paths.selection(preset, negatives, r), bank)
-    return Models(ebm, dmo, vae, selection)
+        r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
+        selection = load_weights(RunPaths.of(workdir, task_name, preset).selection(preset, negatives, r), bank)
+    return Models(nets["ebm"], nets.get("dmo"), nets.get("vae"), selection)

@@ -142,6 +142,22 @@ def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
     assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_show_preset_prints_the_resolved_preset_and_where_each_checkpoint_differs(trained, capsys):
+    from dmo_jax.commands import evaluate
+
+    _, work, _ = trained
+    evaluate.main(["--task", TASK, "--method", "dmo", "--preset", "tiny", "--workdir", str(work), "--show-preset",
+                   "--set", "train.lr=0.002"])
+    out = capsys.readouterr().out
+    shown = json.loads(out[:out.index("\n}\n") + 2])
+    assert shown["train"]["lr"] == 0.002 and shown["image_size"] == TINY.image_size
+    assert f"ebm {workflow.RunPaths.of(work, TASK, TINY).root}" in out  # the EBM and the DMO, not the VAE
+    assert out.count("trained with this preset except (checkpoint -> now) train.lr: 0.0001 -> 0.002") == 2
+    assert "vae " not in out
+    evaluate.main(["--task", TASK, "--method", "langevin", "--preset", "tiny", "--workdir", str(work), "--show-preset"])
+    assert "trained with this preset\n" in capsys.readouterr().out + "\n"
+
+
 def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down():
     from dmo_jax.evaluation import motion_diagnostics
     from envs.motion import pose_to_vector, time_grid

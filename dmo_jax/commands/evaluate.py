@@ -60,6 +60,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="also execute every ranked candidate alone (K times the execution) and report how many "
                         "scenes some candidate solves, and how often a start and an optimised motion succeed "
                         "(with --json: the success of each, for other selection rules)")
+    parser.add_argument("--show-preset", action="store_true",
+                        help="print the resolved preset (--preset, --recipe, --variant, --set) and, per task, where "
+                        "the preset each network's checkpoint recorded differs from it; evaluate nothing")
     parser.add_argument("--json", help="write the results and settings as JSON to this file")
     parser.add_argument("--save-viz", metavar="DIR", help="per episode (the first 10): a trajectories figure (PNG) and a rollout video (MP4)")
     args = parser.parse_args(argv)
@@ -82,6 +85,8 @@ def main(argv: list[str] | None = None) -> None:
         sweep, coarse = parse_sweep(args.sweep), parse_coarse(args.coarse)
     except ValueError as err:
         fail(str(err))
+    if args.show_preset and not learned:
+        fail("--show-preset needs a learned method (the others use no networks)")
     if args.each_candidate and not learned:
         fail("--each-candidate needs a learned method (the others execute one motion per scene)")
     if (args.coarse or args.coarse_recall) and not learned:
@@ -114,6 +119,20 @@ def main(argv: list[str] | None = None) -> None:
         preset = get_preset(args.preset, args.variant, args.recipe).with_overrides(args.set)
     except ValueError as err:
         fail(str(err))
+    if args.show_preset:
+        import json
+
+        from dmo_jax.config import preset_record
+        from dmo_jax.workflow import describe_networks
+
+        print(json.dumps(preset_record(preset), indent=2))
+        for name in names:
+            try:
+                print(f"[{name}]\n" + describe_networks(args.workdir, name, preset, learned, args.negatives,
+                                                         args.dmo_train_steps))
+            except ValueError as err:
+                fail(str(err))
+        return
     data = args.data or default_data_dir(preset.image_size)
     settings = [(args.n, args.R)]
     if sweep:

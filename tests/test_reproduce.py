@@ -1,8 +1,6 @@
 """bin/reproduce: the tables from nothing, written as files, rendered, and resumable."""
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -10,7 +8,6 @@ import pytest
 from dmo_jax import reproduce
 from dmo_jax.comparison import load_evaluations
 
-ROOT = Path(__file__).resolve().parents[1]
 TASK = "reach_target"  # the task of the suite's shared tiny networks (conftest.py, `trained`)
 
 
@@ -62,12 +59,20 @@ def test_rows_made_with_settings_the_preset_no_longer_has_are_replaced_not_mixed
                         log=lambda m: None)
 
 
-def _run(*args):
-    return subprocess.run([sys.executable, str(ROOT / "bin/reproduce"), *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=1800)
+def _run(capsys, *args) -> tuple[int, str]:
+    """``bin/reproduce args`` in this process (its compiled programs are the suite's): exit code, stderr."""
+    from dmo_jax.commands.reproduce import main
+
+    capsys.readouterr()
+    try:
+        main(list(args))
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code
+    return code, capsys.readouterr().err
 
 
-def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(trained, tmp_path):
+def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(trained, tmp_path, capsys):
     shared_data, shared_work, _ = trained  # reach_target's data and networks (in a copy: they are shared)
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
     (dmo,) = work.glob(f"{TASK}/tiny/concat/dmo-*")
@@ -76,9 +81,9 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
     report.write_text("# Report\n")
     args = ["--tables", "5", "--tasks", TASK, "--preset", "tiny", "--episodes", "4", "--data", str(data),
             "--workdir", str(work), "--results", str(tmp_path / "results"), "--report", str(report)]
-    first = _run(*args)
-    assert first.returncode == 0, first.stderr
-    assert "train dmo" in first.stderr and "train ebm" not in first.stderr and dmo.is_dir()
+    code, err = _run(capsys, *args)
+    assert code == 0, err
+    assert "train dmo" in err and "train ebm" not in err and dmo.is_dir()
     path = tmp_path / "results" / "table5.json"
     payload = json.loads(path.read_text())
     made = payload["provenance"]
@@ -96,10 +101,10 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
     assert "| method | CB | PC | PB |" in section and "paper R=1, n=1000" in section
     assert "dmo n=8 R=1 {image_size=32} |" in section and "preset `tiny`" in section
     before = path.read_bytes()
-    second = _run(*args)
-    assert second.returncode == 0, second.stderr
-    assert "training" not in second.stderr and second.stderr.count(": done") == 1
+    code, err = _run(capsys, *args)
+    assert code == 0, err
+    assert "training" not in err and err.count(": done") == 1
     assert path.read_bytes() == before
     # results of another preset or scene count are never mixed in
-    other = _run(*args[:-10], "--episodes", "3", *args[-8:])
-    assert other.returncode == 2 and "on 4 scenes, not 'tiny' on 3" in other.stderr
+    code, err = _run(capsys, *args[:-10], "--episodes", "3", *args[-8:])
+    assert code == 2 and "on 4 scenes, not 'tiny' on 3" in err

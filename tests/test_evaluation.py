@@ -25,6 +25,15 @@ def _run(*args, check=True):
     return proc
 
 
+def _evaluate(capsys, *args) -> str:
+    """``bin/evaluate args`` in this process, on the compiled programs of the tests before it: its stdout."""
+    from dmo_jax.commands import evaluate
+
+    capsys.readouterr()
+    evaluate.main(list(args))
+    return capsys.readouterr().out
+
+
 def _check_summary(summary):
     assert 0.0 <= summary["ebm"]["heldout_near_top1"] <= 1.0
     assert summary["dmo"]["heldout_near_position_before"] > 0 and summary["dmo"]["heldout_near_position_after"] > 0
@@ -102,16 +111,15 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
     assert "Traceback" not in proc.stderr
 
 
-def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path):
+def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path, capsys):
     from dmo_jax.evaluation import evaluate_method
 
     data, work, _ = trained
     methods = ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"]
     out = tmp_path / "all.json"
-    proc = _run("bin/evaluate", "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data",
-                str(data), "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco",
-                "--json", str(out))
-    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [f"{m} n=2 {{image_size=32}}" for m in methods]
+    table = _evaluate(capsys, "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data", str(data),
+                      "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco", "--json", str(out))
+    assert [l.split("|")[1].strip() for l in table.splitlines()[2:]] == [f"{m} n=2 {{image_size=32}}" for m in methods]
     payload = json.loads(out.read_text())
     assert payload["method"] == methods and [r["method"] for r in payload["results"]] == methods
     for r in payload["results"]:
@@ -143,19 +151,17 @@ def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
 
 
 def test_show_preset_prints_the_resolved_preset_and_where_each_checkpoint_differs(trained, capsys):
-    from dmo_jax.commands import evaluate
-
     _, work, _ = trained
-    evaluate.main(["--task", TASK, "--method", "dmo", "--preset", "tiny", "--workdir", str(work), "--show-preset",
-                   "--set", "train.lr=0.002"])
-    out = capsys.readouterr().out
+    out = _evaluate(capsys, "--task", TASK, "--method", "dmo", "--preset", "tiny", "--workdir", str(work),
+                    "--show-preset", "--set", "train.lr=0.002")
     shown = json.loads(out[:out.index("\n}\n") + 2])
     assert shown["train"]["lr"] == 0.002 and shown["image_size"] == TINY.image_size
     assert f"ebm {workflow.RunPaths.of(work, TASK, TINY).root}" in out  # the EBM and the DMO, not the VAE
     assert out.count("trained with this preset except (checkpoint -> now) train.lr: 0.0001 -> 0.002") == 2
     assert "vae " not in out
-    evaluate.main(["--task", TASK, "--method", "langevin", "--preset", "tiny", "--workdir", str(work), "--show-preset"])
-    assert "trained with this preset\n" in capsys.readouterr().out + "\n"
+    out = _evaluate(capsys, "--task", TASK, "--method", "langevin", "--preset", "tiny", "--workdir", str(work),
+                    "--show-preset")
+    assert "trained with this preset\n" in out + "\n"
 
 
 def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down():

@@ -357,6 +357,7 @@ def record_differences(saved: dict, current: dict, prefix: str = "") -> list[str
             lines.append(f"{prefix}{key}: {a!r} -> {b!r}")
     return lines
 
+
 PAPER = Preset(name="paper", image_size=256)
 
 # cpu: the default, sized for a 2-core laptop CPU at 96 px.

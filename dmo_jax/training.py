@@ -140,9 +140,8 @@ def vae_spec(preset: Preset, heldout: MotionDataset | None = None, mean_pose=Non
     def eval_fn(params, extra):
         return evaluate(params, jnp.asarray(heldout.motions))
 
-    return ModelSpec("vae", init_fn, loss_fn, eval_fn if heldout is not None else None,
-                     cfg.vae_steps, cfg.vae_batch, {"model": "vae", "preset": preset.name, "config": preset_record(preset)},
-                     cfg)
+    return ModelSpec("vae", init_fn, loss_fn, eval_fn if heldout is not None else None, cfg.vae_steps,
+                     cfg.vae_batch, {"model": "vae", "preset": preset.name, "config": preset_record(preset)}, cfg)
 
 
 #: The held-out ranking's negatives: the paper's counts, whatever the preset trains with.

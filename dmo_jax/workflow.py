@@ -219,10 +219,10 @@ def describe_networks(workdir, task_name: str, preset: Preset, method, negatives
                       dmo_train_steps: int | None = None) -> str:
     """For each network ``method`` needs: its run directory and where the preset its checkpoint
     recorded differs from ``preset`` (``bin/evaluate --show-preset``)."""
-    from .config import preset_record, record_differences
+    from .config import record_differences
 
     lines = []
-    for net, (path, _) in network_runs(workdir, task_name, preset, method, negatives, dmo_train_steps).items():
+    for net, (path, spec) in network_runs(workdir, task_name, preset, method, negatives, dmo_train_steps).items():
         try:
             saved = training.load_meta(path).get("config")
         except training.TrainingError as err:
@@ -231,7 +231,7 @@ def describe_networks(workdir, task_name: str, preset: Preset, method, negatives
         if saved is None:
             lines.append(f"{net} {path}: its checkpoint records no preset (written before checkpoints did)")
             continue
-        diff = record_differences(saved, preset_record(preset))
+        diff = record_differences(saved, spec.meta["config"])  # the preset as this network would train now
         lines.append(f"{net} {path}: " + ("trained with this preset" if not diff else
                                           "trained with this preset except (checkpoint -> now) " + "; ".join(diff)))
     return "\n".join(lines)

@@ -99,6 +99,12 @@ class VAEConfig:
 DMO_INPUTS = ("decoded", "offset")
 
 
+def _may_be_zero(default: int):
+    """A :class:`TrainConfig` count that may be 0 (a kind of negative, or an addition that 0 turns
+    off); its other counts and sizes must be positive."""
+    return field(default=default, metadata={"min": 0})
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Training hyper-parameters of docs/method.md ("Training"); used by the training code."""
@@ -109,16 +115,16 @@ class TrainConfig:
     vae_steps: int = 100_000
     vae_batch: int = 32
     vae_kl_weight: float = 0.01
-    vae_kl_warmup: int = 0  # steps over which the KL weight rises linearly from 0 (0: constant, the paper's)
+    vae_kl_warmup: int = _may_be_zero(0)  # steps of the KL weight's linear rise from 0 (0: constant, the paper's)
     ebm_steps: int = 50_000
     ebm_batch: int = 32
-    ebm_gt_negatives: int = 31  # other images' ground-truth motions
-    ebm_vae_negatives: int = 32  # decoded at z = mu + vae_negative_sigma * sigma * eps
+    ebm_gt_negatives: int = _may_be_zero(31)  # other images' ground-truth motions
+    ebm_vae_negatives: int = _may_be_zero(32)  # decoded at z = mu + vae_negative_sigma * sigma * eps
     vae_negative_sigma: float = 2.0
     # Not in the paper (0 = off): this many of the ebm_gt_negatives are drawn, per positive,
     # from its near_pool nearest other training motions (dmo_jax.neighbours) instead of
     # random other images of the batch: the bank motions it competes with at prediction.
-    ebm_near_negatives: int = 0
+    ebm_near_negatives: int = _may_be_zero(0)
     near_pool: int = 16
     # Not in the paper (0 = off, its one-hot target): > 0 (metres) spreads the InfoNCE target
     # over all candidates as softmax(-d / ebm_target_scale), d a candidate's mean 3-D pose
@@ -130,7 +136,7 @@ class TrainConfig:
     # negatives from its own near_pool lowest-energy other motions instead of the nearest by
     # distance: the rivals it does confuse, such as put_knife's motions that visit the knife and the
     # board in the reverse order, which no motion near the positive resembles.
-    ebm_mined_steps: int = 0
+    ebm_mined_steps: int = _may_be_zero(0)
     dmo_steps: int = 100_000
     dmo_batch: int = 16
     dmo_train_steps: int = 5  # R during training, refinements unrolled per optimiser step ("Ours-5"; --dmo-train-steps)
@@ -144,16 +150,16 @@ class TrainConfig:
     uv_weight: float = 10.0  # loss weight of MSE(uv) (VAE and DMO)
     # Not in the paper (0 = off: the DMO's candidates ranked by energy): > 0 fits the selection head
     # (dmo_jax.selection) on the DMO's candidates for this many training scenes, each executed there.
-    selection_scenes: int = 0
+    selection_scenes: int = _may_be_zero(0)
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{f.name} must be a finite number, got {value}")
-            # counts and sizes are positive; the counts of extras may be 0
+            # counts and sizes are positive unless a field says it may be 0; numbers are >= 0
             if isinstance(value, (int, float)) and not isinstance(value, bool):
-                low = 0 if isinstance(value, float) or f.name.endswith(("_negatives", "_warmup", "_mined_steps", "_scenes")) else 1
+                low = f.metadata.get("min", 0 if isinstance(value, float) else 1)
                 if value < low:
                     raise ValueError(f"{f.name} must be {'>= 0' if low == 0 else 'positive'}, got {value}")
         if self.ebm_target_scale < 0:

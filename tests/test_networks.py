@@ -233,6 +233,13 @@ def test_train_overrides_replace_only_the_named_settings():
     for bad in ("head.width=64", "encoder.out_dim=8", "train.depth_cue=true", "nope=1"):
         with pytest.raises(ValueError, match=f"--set '{bad}': expected SECTION.FIELD=VALUE"):
             cpu.with_overrides([bad])
+    # ranges from the dataclass: counts positive, those a field lets be 0 (off) >= 0, numbers finite
+    assert cpu.with_overrides(["selection_scenes=0", "ebm_mined_steps=0"]).train.selection_scenes == 0
+    for bad, why in (("ebm_steps=0", "ebm_steps must be positive"),
+                     ("selection_scenes=-1", "selection_scenes must be >= 0"), ("uv_weight=-1", "uv_weight must be >= 0"),
+                     ("lr=nan", "lr must be a finite number"), ("ebm_steps=1.5", "ebm_steps takes a int")):
+        with pytest.raises(ValueError, match=f"--set '{bad}': {why}"):
+            cpu.with_overrides([bad])
     # the image size: any multiple of the encoder's total stride, run in a directory of its own
     smaller = cpu.with_overrides(["image_size=64"])
     assert smaller == cpu.with_overrides(["preset.image_size=64"]) and smaller.image_size == 64

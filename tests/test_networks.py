@@ -235,8 +235,8 @@ def test_train_overrides_replace_only_the_named_settings():
             cpu.with_overrides([bad])
     # ranges from the dataclass: counts positive, those a field lets be 0 (off) >= 0, numbers finite
     assert cpu.with_overrides(["selection_scenes=0", "ebm_mined_steps=0"]).train.selection_scenes == 0
-    for bad, why in (("ebm_steps=0", "ebm_steps must be positive"),
-                     ("selection_scenes=-1", "selection_scenes must be >= 0"), ("uv_weight=-1", "uv_weight must be >= 0"),
+    for bad, why in (("ebm_steps=0", "ebm_steps must be positive"), ("uv_weight=-1", "uv_weight must be >= 0"),
+                     ("selection_scenes=-1", "selection_scenes must be >= 0"),
                      ("lr=nan", "lr must be a finite number"), ("ebm_steps=1.5", "ebm_steps takes a int")):
         with pytest.raises(ValueError, match=f"--set '{bad}': {why}"):
             cpu.with_overrides([bad])

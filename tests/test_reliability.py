@@ -30,6 +30,7 @@ import pytest
 from dmo_jax import training
 from dmo_jax.commands import benchmark, compare, cost, evaluate, train_all
 from dmo_jax.config import get_preset
+from dmo_jax.data import motions_fingerprint
 from dmo_jax.inference import Models, predict
 from dmo_jax.networks import DMONet, EBMNet
 from dmo_jax.vae import VAENet
@@ -152,8 +153,10 @@ def paths(tmp_path_factory):
     _write_split(p["empty"], "test", 2)
     p["wrong_dtype"] = _write_data(base / "wrong_dtype", motions=_motions(4, rng).astype(np.float64))
 
-    # checkpoints (random parameters, written as bin/train_all writes them)
-    ebm_meta = {"model": "ebm", "preset": "tiny", "variant": "concat", "negatives": "in-data+vae"}
+    # checkpoints (random parameters, written as bin/train_all writes them, trained on `good`'s motions)
+    good_motions = dataset.load_split(p["good"], TASK, "train").motions
+    ebm_meta = {**training.ebm_spec(TINY).meta, "task": TASK,
+                "dataset": {"fingerprint": motions_fingerprint(good_motions)}}
     ebm_params = random_params(EBMNet(TINY))
     run = lambda name: base / name / TASK / "tiny" / "concat" / "ebm-in-data+vae"  # noqa: E731
     _save_checkpoint(run("runs_good"), ebm_params, ebm_meta)

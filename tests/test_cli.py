@@ -11,10 +11,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(*args, check=True):
+def _run(*args):
     proc = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    if check:
-        assert proc.returncode == 0, proc.stderr
+    assert proc.returncode == 0, proc.stderr
     return proc
 
 
@@ -28,11 +27,6 @@ def test_render_writes_rgb_beside_depth(tmp_path):
     assert re.search(r"colour bar \d+\.\d\d-\d+\.\d\d m", proc.stdout)
 
 
-def test_render_rejects_missing_directory(tmp_path):
-    proc = _run("bin/render", "--out", str(tmp_path / "nope" / "x.png"), check=False)
-    assert proc.returncode != 0 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
-
-
 def test_execute_runs_a_motion_file(tmp_path):
     motion, out = tmp_path / "m.npy", tmp_path / "r.json"
     _run("bin/execute", "--backend", "mujoco", "--save-motion", str(motion))
@@ -40,13 +34,6 @@ def test_execute_runs_a_motion_file(tmp_path):
     proc = _run("bin/execute", "--backend", "mujoco", "--motion", str(motion), "--json", str(out))
     assert json.loads(out.read_text()) == {"success": True, "failed_waypoints": 0, "abandoned": False}
     assert len([line for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()]) == 101
-
-
-def test_execute_rejects_a_malformed_motion(tmp_path):
-    bad = tmp_path / "bad.npy"
-    np.save(bad, np.zeros((101, 7), np.float32))
-    proc = _run("bin/execute", "--motion", str(bad), check=False)
-    assert proc.returncode != 0 and "[E, T, 11]" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_commands_started_by_another_python_run_in_the_project_environment():

@@ -2,9 +2,6 @@
 the tiny preset, sweeps, JSON, visualisations (a figure and an MP4 per episode)."""
 import json
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,16 +10,8 @@ from dmo_jax import workflow
 from dmo_jax.config import get_preset
 from envs import dataset
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = get_preset("tiny")
 TASK = "reach_target"  # the task of the shared `trained` fixture (conftest.py)
-
-
-def _run(*args, check=True):
-    proc = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    if check:
-        assert proc.returncode == 0, proc.stderr
-    return proc
 
 
 def _evaluate(capsys, *args) -> str:
@@ -39,14 +28,14 @@ def _check_summary(summary):
     assert summary["dmo"]["heldout_near_position_before"] > 0 and summary["dmo"]["heldout_near_position_after"] > 0
 
 
-def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
+def test_evaluate_a_learned_method_end_to_end(trained, tmp_path, capsys):
     data, work, summary = trained
     _check_summary(summary)
     out = tmp_path / "r.json"
-    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
-                "--workdir", str(work), "--episodes", "2", "--n", "2", "--sweep", "R=0,2", "--backend", "mujoco",
-                "--json", str(out), "--save-viz", str(tmp_path / "viz"), "--each-candidate")
-    table = proc.stdout.splitlines()
+    stdout = _evaluate(capsys, "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
+                       "--workdir", str(work), "--episodes", "2", "--n", "2", "--sweep", "R=0,2", "--backend",
+                       "mujoco", "--json", str(out), "--save-viz", str(tmp_path / "viz"), "--each-candidate")
+    table = stdout.splitlines()
     assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
     # sort ignores R: one row, not one per R
     assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0 {image_size=32}", "sort n=2 {image_size=32}",
@@ -78,12 +67,16 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path):
     assert chart.shape[:2] == (420, 900) and chart.std() > 10
 
 
-def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
+def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained, capsys):
     from dmo_jax import training
+    from dmo_jax.commands import ebm_misses
 
     data, work, _ = trained
-    proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work))
-    result = json.loads(proc.stdout[: proc.stdout.rindex("}") + 1])
+    argv = ["--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work)]
+    capsys.readouterr()
+    ebm_misses.main(argv)
+    stdout = capsys.readouterr().out
+    result = json.loads(stdout[: stdout.rindex("}") + 1])
     metrics = workflow.RunPaths.of(work, TASK, TINY).ebm(TINY, "in-data+vae") / "metrics.jsonl"
     top1 = [r["heldout_top1"] for r in map(json.loads, metrics.read_text().splitlines()) if "heldout_top1" in r]
     assert result["episodes"] == 4 and result["top1"] == pytest.approx(top1[-1])
@@ -105,10 +98,10 @@ def test_ebm_misses_explains_the_heldout_ranking_of_train_all(trained):
                        for w in range(1, 32))
         assert nearest == pytest.approx(expected, abs=1e-4)
     # networks with the depth cue are others than those without it: asked for, they are missing, by name
-    proc = _run("bin/ebm_misses", "--task", TASK, "--preset", "tiny", "--data", str(data), "--workdir", str(work),
-                "--set", "depth_cue=true", check=False)
-    assert proc.returncode != 0 and "ebm-in-data+vae-cue/checkpoints: train this model first" in proc.stderr
-    assert "Traceback" not in proc.stderr
+    with pytest.raises(SystemExit) as exit_info:
+        ebm_misses.main(argv + ["--set", "depth_cue=true"])
+    assert exit_info.value.code == 2
+    assert "ebm-in-data+vae-cue/checkpoints: train this model first" in capsys.readouterr().err
 
 
 def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path, capsys):
@@ -143,12 +136,6 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
     assert whole["episode_success"] == sort["episode_success"] and sort["coarse"] is None  # tiny: full scoring
 
 
-def test_evaluate_without_trained_models_fails_clearly(trained, tmp_path):
-    data, _, _ = trained
-    proc = _run("bin/evaluate", "--task", TASK, "--method", "dmo", "--preset", "tiny", "--data", str(data),
-                "--workdir", str(tmp_path), check=False)
-    assert proc.returncode == 2 and "no checkpoint" in proc.stderr and "Traceback" not in proc.stderr
-
 
 def test_show_preset_prints_the_resolved_preset_and_where_each_checkpoint_differs(trained, capsys):
     _, work, _ = trained
@@ -181,7 +168,7 @@ def test_motion_diagnostics_report_how_much_higher_the_first_motion_reaches_down
     assert out["first_lowest_offset_m"] == pytest.approx(0.01, abs=1e-4)
 
 
-def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path):
+def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path, capsys):
     from dmo_jax import mining, neighbours
 
     shared_data, shared_work, summary = trained_bank  # beside the paper's recipe (conftest.py; copied: shared)
@@ -189,10 +176,10 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path)
     _check_summary(summary)
     assert summary["selection"]["scenes"] == 20  # the recipe's 300, capped at the training split
     out = tmp_path / "bank.json"
-    proc = _run("bin/evaluate", "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
-                "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend", "mujoco",
-                "--json", str(out))
-    assert [l.split("|")[1].strip() for l in proc.stdout.splitlines()[2:]] == [
+    stdout = _evaluate(capsys, "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
+                       "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend",
+                       "mujoco", "--json", str(out))
+    assert [l.split("|")[1].strip() for l in stdout.splitlines()[2:]] == [
         "sort n=2 [bank] {image_size=32}", "dmo n=2 R=1 (selection head 300, 8 phases) [bank] {image_size=32}"]
     payload = json.loads(out.read_text())
     assert payload["settings"]["recipe"] == "bank"

@@ -84,10 +84,12 @@ class SceneRenderer:
         r.update_scene(data, self._camera)
         return r.render()
 
+    def rgb(self, data: mujoco.MjData) -> np.ndarray:
+        """uint8 ``[H, W, 3]``: the colour image alone, half the rendering of :meth:`rgbd`."""
+        return self._render(data).copy()
+
     def rgbd(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        rgb = self._render(data).copy()
-        depth = self._render(data, depth=True).astype(np.float32)
-        return rgb, depth
+        return self.rgb(data), self._render(data, depth=True).astype(np.float32)
 
     def segmentation(self, data: mujoco.MjData) -> np.ndarray:
         seg = self._render(data, segmentation=True)

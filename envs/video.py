@@ -96,5 +96,5 @@ def render_rollout(world: World, scenes: SceneBatch, qpos: np.ndarray, episode: 
         for q in states:
             data.qpos[:] = q
             mujoco.mj_forward(model, data)
-            frames.append(renderer.rgbd(data)[0])
+            frames.append(renderer.rgb(data))
     return np.stack(frames)

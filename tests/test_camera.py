@@ -63,6 +63,7 @@ def test_rgbd_shapes_and_types():
     mujoco.mj_forward(world.model, data)
     with camera.SceneRenderer(world.model, 64) as r:
         rgb, depth = r.rgbd(data)
+        np.testing.assert_array_equal(r.rgb(data), rgb)  # the colour image alone is the same
     assert rgb.shape == (64, 64, 3) and rgb.dtype == np.uint8
     assert depth.shape == (64, 64) and depth.dtype == np.float32
     assert 1.0 < depth[32, 32] < 3.0  # the table in the middle of the view, metres away

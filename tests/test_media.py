@@ -149,7 +149,7 @@ def test_episode_visuals_are_a_figure_and_an_mp4(tmp_path):
     seed = 3
     scene = task.reset(seed)
     with TaskCamera(task) as cam:
-        rgb = cam.rgbd(scene)[0]
+        rgb = cam.rgb(scene)
     expert = task.expert_motion(scene)
     cands = np.stack([expert, expert + 0.02])[None].astype(np.float32)  # [E=1, K=2, 101, 11]
     test = types.SimpleNamespace(meta={"image_size": 32}, rgb=rgb[None], seeds=np.array([seed]))

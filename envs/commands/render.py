@@ -101,7 +101,7 @@ def _contact_sheet(names: list[str], size: int, seed: int, columns: int = 3) -> 
     for name in names:
         task = get_task(name, size)
         with TaskCamera(task) as cam:
-            tiles.append(cam.rgbd(task.reset(episode_seed(seed, "train", 0)))[0])
+            tiles.append(cam.rgb(task.reset(episode_seed(seed, "train", 0))))
     columns = min(columns, len(tiles))
     rows = -(-len(tiles) // columns)
     cell = size * -(-256 // size)

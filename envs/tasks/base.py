@@ -209,6 +209,11 @@ class TaskCamera:
         self.data.qvel[:] = 0
         mujoco.mj_forward(self.model, self.data)
 
+    def rgb(self, scene: Scene, qpos: np.ndarray | None = None) -> np.ndarray:
+        """RGB uint8 ``[S, S, 3]`` of the scene (at its start, or at ``qpos``), without depth."""
+        self._set(scene, qpos)
+        return self._renderer.rgb(self.data)
+
     def rgbd(self, scene: Scene, qpos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """RGB uint8 ``[S, S, 3]`` and metric depth float32 ``[S, S]`` of the scene (at its
         start, or at ``qpos``)."""

@@ -18,6 +18,8 @@ from typing import NamedTuple
 
 #: Architecture variants of paper Table 2.
 VARIANTS = ("concat", "wo_concat", "gap", "vit")
+#: The variants that sample F at each pose's pixel, and so can read the depth cue there.
+CUE_VARIANTS = ("concat", "wo_concat")
 
 
 def check_variant(variant: str) -> str:
@@ -54,9 +56,10 @@ class HeadConfig:
     num_heads: int = 4
     dropout: float = 0.1  # pose MLP dropout
     vit_tokens_per_side: int = 16  # ViT variant: F cut into 16 x 16 patches (l = 256)
-    # Not in the paper (False = off; concat variant only): F carries the network image's depth
-    # as one extra channel, and the feature-mix MLP also reads, per pose, the image's depth at
-    # the pose's pixel minus the pose's depth, in decimetres.
+    # Not in the paper (False = off; variants of CUE_VARIANTS only): F carries the network image's
+    # depth as one extra channel, and the head also reads, per pose, the image's depth at the
+    # pose's pixel minus the pose's depth, in decimetres (concat: as one more input of the feature
+    # mix; wo_concat: projected and added to the pose's sampled image token).
     depth_cue: bool = False
     # 0: that difference as it is. > 0 (metres): tanh(difference / depth_cue_range), so a pose
     # far in front of what the camera sees at its pixel reads about 1 whatever lies behind it.
@@ -66,8 +69,9 @@ class HeadConfig:
         check_variant(self.variant)
         if not math.isfinite(self.depth_cue_range):
             raise ValueError(f"HeadConfig: depth_cue_range must be a finite number, got {self.depth_cue_range}")
-        if self.depth_cue and self.variant != "concat":
-            raise ValueError(f"HeadConfig: depth_cue needs the concat variant, not {self.variant!r}")
+        if self.depth_cue and self.variant not in CUE_VARIANTS:
+            raise ValueError(f"HeadConfig: depth_cue needs a variant that samples F at each pose "
+                             f"({', '.join(CUE_VARIANTS)}), not {self.variant!r}")
         if self.depth_cue_range < 0 or (self.depth_cue_range and not self.depth_cue):
             raise ValueError(f"HeadConfig: depth_cue_range must be >= 0 and needs depth_cue=true, "
                              f"got {self.depth_cue_range} with depth_cue={self.depth_cue}")
@@ -188,7 +192,7 @@ class TrainConfig:
 #:   its InfoNCE target spreads over all candidates by their distance from the positive
 #:   (``ebm_target_scale``, 1 cm), so it learns to rank the motions that are not the positive by
 #:   how close they lie. The random negatives still teach it the image. Both heads read the
-#:   depth cue (``HeadConfig.depth_cue``) where the variant allows it (concat). After its
+#:   depth cue (``HeadConfig.depth_cue``) where the variant can (concat, wo_concat). After its
 #:   ``ebm_steps`` the EBM ranks the bank for every training image and trains 40 % more steps with
 #:   those near negatives drawn from its own lowest-energy motions (``ebm_mined_steps``). The DMO learns
 #:   from the paper's inputs, VAE samples of the ground truth: beside the cue they solved 77.9 %
@@ -222,9 +226,9 @@ def recipe_settings(recipe: str, train: TrainConfig) -> dict:
 
 
 def recipe_head(recipe: str, head: HeadConfig) -> HeadConfig:
-    """``head`` as ``recipe`` sets it: the depth cue on for the bank recipe's concat variant, off
-    otherwise (the other variants cannot read it)."""
-    cue = recipe == "bank" and head.variant == "concat"
+    """``head`` as ``recipe`` sets it: the depth cue on for the bank recipe where the variant can
+    read it (:data:`CUE_VARIANTS`), off otherwise."""
+    cue = recipe == "bank" and head.variant in CUE_VARIANTS
     return dataclasses.replace(head, depth_cue=cue, depth_cue_range=head.depth_cue_range if cue else 0.0)
 
 

@@ -11,7 +11,8 @@ Head of variant ``concat`` (the paper's model), per motion:
   (:func:`bilinear_sample`); c_t = [f_t, g_t] -> MLP 2w -> 2w -> 2w -> w (GELU after each);
   (option ``depth_cue``, not in the paper: F carries the image's depth as a last channel and
   the MLP also reads, per pose, the image's depth at uv_t minus the pose's depth, in dm,
-  or tanh of it over ``depth_cue_range`` metres);
+  or tanh of it over ``depth_cue_range`` metres; ``wo_concat`` adds a projection of it to the
+  pose's sampled image token);
 * Transformer over the 101 tokens (:class:`TransformerBlock`, as the reference: no LayerNorm);
 * EBM: mean over tokens -> MLP w -> w -> w -> w/2 -> w/2 -> 1 = energy (lower is better);
 * DMO: per token w -> w -> w -> w/2 -> w/2 (GELU), then one head per key
@@ -233,18 +234,15 @@ class MotionTrunk(nn.Module):
         if feature is None:
             return mix.pose_part(g) if concat else g
         if concat:
-            f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
-            cue = None
-            if cfg.depth_cue:  # F's last channel is the image's depth (see _ImageMotionModule.encode)
-                f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
-                gap = image_depth - motions[..., POSE_KEYS["z"]]
-                cue = jnp.tanh(gap / cfg.depth_cue_range) if cfg.depth_cue_range else gap * 10.0
+            f, cue = _sample_along(feature, motions, cfg)
             tokens = mix(f, g, cue, pose_part=pose)
             image_tokens = 0
         else:
             g = g if pose is None else pose
             if cfg.variant == "wo_concat":
-                image = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
+                image, cue = _sample_along(feature, motions, cfg)
+                if cfg.depth_cue:
+                    image = image + nn.Dense(w, use_bias=False, name="depth_cue")(cue)
             elif cfg.variant == "gap":
                 image = jnp.broadcast_to(jnp.mean(feature, axis=(0, 1)), (n, 1, w))
             elif cfg.variant == "vit":
@@ -257,6 +255,19 @@ class MotionTrunk(nn.Module):
         for i in range(cfg.num_blocks):
             tokens = TransformerBlock(cfg.num_heads, name=f"block{i}")(tokens, deterministic)
         return tokens, tokens[:, image_tokens:]
+
+
+def _sample_along(feature, motions, cfg: HeadConfig):
+    """F sampled at each pose's pixel: ``(f [n, T, w], cue [n, T, 1] or None)``, the cue (with
+    ``depth_cue``, F's last channel being the image's depth; see ``_ImageMotionModule.encode``)
+    the image's depth there minus the pose's depth, in decimetres or squashed by ``depth_cue_range``."""
+    f = bilinear_sample(feature, motions[..., POSE_KEYS["uv"]])
+    if not cfg.depth_cue:
+        return f, None
+    w = cfg.width
+    f, image_depth = f[..., :w], DEPTH_NEAR + f[..., w:] * (DEPTH_FAR - DEPTH_NEAR)
+    gap = image_depth - motions[..., POSE_KEYS["z"]]
+    return f, jnp.tanh(gap / cfg.depth_cue_range) if cfg.depth_cue_range else gap * 10.0
 
 
 def _flatten_motions(motions, any_length: bool = False):

@@ -76,15 +76,16 @@ class Run:
                 "dmo_train_steps": self.dmo_train_steps}
 
 
-def table_runs(table: str, recipe: str) -> list[Run]:
-    """The runs of ``table``; Table 1 runs every recipe, the others ``recipe``."""
+def table_runs(table: str, recipe: str, variants: Sequence[str] = VARIANTS) -> list[Run]:
+    """The runs of ``table``; Table 1 runs every recipe, the others ``recipe``; Table 2 the
+    architectures of ``variants``."""
     if table == "1":
         runs = [Run("nearest", None, ("nearest",))]
         for r in RECIPES:
             runs += [Run(r, r, TABLE1_METHODS), Run(f"{r}-dmo-trained-R1", r, dmo_train_steps=1)]
         return runs
     if table == "2":
-        return [Run(f"{recipe}-{v}", recipe, variant=v) for v in VARIANTS]
+        return [Run(f"{recipe}-{v}", recipe, variant=v) for v in variants]
     if table == "4":
         from .losses import NEGATIVE_MODES
 
@@ -183,10 +184,11 @@ def evaluate_run(run: Run, task: str, preset: Preset, episodes: int, data, workd
 
 
 def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episodes: int, *, results_dir,
-              data, workdir, recipe: str | None = None, backend: str = "auto", seed: int = 0,
-              command: Sequence[str] = (), log: Callable[[str], None] = print) -> dict[str, Path]:
+              data, workdir, recipe: str | None = None, variants: Sequence[str] = VARIANTS, backend: str = "auto",
+              seed: int = 0, command: Sequence[str] = (), log: Callable[[str], None] = print) -> dict[str, Path]:
     """Make whatever results of ``tables`` on ``tasks`` are missing from ``results_dir`` and
-    return each table's file. ``recipe``: the networks of Tables 2-6 (None: the preset's)."""
+    return each table's file. ``recipe``: the networks of Tables 2-6 (None: the preset's);
+    ``variants``: Table 2's architectures (rows of others already in its file stay)."""
     from envs.commands.common import write_json
 
     results_dir = Path(results_dir)
@@ -196,7 +198,7 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
     for table in tables:
         path = files[table] = results_dir / f"table{table}.json"
         payload = load_table(path, preset, episodes)
-        for run in table_runs(table, recipe):
+        for run in table_runs(table, recipe, variants):
             for task in tasks:
                 if _done(payload, run, task, preset):
                     log(f"[table {table}] {task} {run.name}: done")

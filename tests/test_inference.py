@@ -191,7 +191,7 @@ def test_the_preset_sets_the_default_bank_scoring_where_it_keeps_more_than_n_and
     assert inference.resolve_coarse(TINY, "preset", 4, 12) is None  # the paper's full scoring
 
 
-@pytest.mark.parametrize("variant,cue", [("concat", False), ("concat", True), ("gap", False)])
+@pytest.mark.parametrize("variant,cue", [("concat", False), ("concat", True), ("wo_concat", True), ("gap", False)])
 def test_a_cached_bank_gives_the_same_ranking_and_energies(bank, variant, cue):
     preset = TINY.with_variant(variant).with_overrides([f"head.depth_cue={str(cue).lower()}"])
     models = Models(random_params(EBMNet(preset), 0), random_params(DMONet(preset), 1))

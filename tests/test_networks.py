@@ -256,7 +256,8 @@ def test_train_overrides_replace_only_the_named_settings():
 def test_the_bank_recipe_reads_the_depth_cue_where_the_variant_can():
     assert get_preset("cpu").head.depth_cue and get_preset("paper", recipe="bank").head.depth_cue
     assert not get_preset("cpu", recipe="paper").head.depth_cue and not get_preset("paper").head.depth_cue
-    for variant in ("wo_concat", "gap", "vit"):  # they have no per-pose feature mix to read it
+    assert get_preset("cpu", "wo_concat").head.depth_cue  # it samples F at each pose too
+    for variant in ("gap", "vit"):  # they sample F at no pose, so there is no pose's pixel to read
         assert not get_preset("cpu", variant).head.depth_cue
         assert get_preset("cpu", variant).with_variant("concat") == get_preset("cpu")
 
@@ -276,10 +277,23 @@ def test_depth_cue_carries_the_image_depth_in_f_and_changes_the_mix_input():
     assert ebm.energy(params, feature, jnp.full((2, 101, 11), 0.5)).shape == (2,)
     with pytest.raises(ValueError, match=r"feature must be one image's F \[H, W, 17\]"):
         ebm.energy(params, feature[..., :-1], jnp.full((2, 101, 11), 0.5))
-    with pytest.raises(ValueError, match="depth_cue needs the concat variant, not 'gap'"):
+    with pytest.raises(ValueError, match=r"depth_cue needs a variant that samples F at each pose \(concat, "
+                       r"wo_concat\), not 'gap'"):
         get_preset("tiny", "gap").with_overrides(["depth_cue=true"])
     with pytest.raises(ValueError, match="depth_cue takes a bool, got 'yes'"):
         tiny.with_overrides(["depth_cue=yes"])
+
+
+def test_wo_concat_reads_the_depth_cue_in_its_sampled_image_tokens():
+    tiny = get_preset("tiny", "wo_concat")
+    ebm = EBMNet(tiny.with_overrides(["depth_cue=true"]))
+    params = ebm.init(jax.random.key(0))
+    assert params["params"]["trunk"]["depth_cue"]["kernel"].shape == (1, tiny.head.width)
+    assert "depth_cue" not in EBMNet(tiny).param_shapes()["params"]["trunk"]
+    feature = ebm.encode(params, jax.random.uniform(jax.random.key(1), (32, 32, 4)))
+    motions = jnp.full((2, 101, 11), 0.5)
+    assert not np.allclose(ebm.energy(params, feature, motions),
+                           ebm.energy(params, feature.at[..., -1].add(0.1), motions))
 
 
 def test_depth_cue_range_saturates_the_gap_behind_poses_far_in_front():

@@ -28,7 +28,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 from dmo_jax import training
-from dmo_jax.commands import benchmark, compare, cost, evaluate, train_all
+from dmo_jax.commands import benchmark, compare, cost, evaluate, reproduce, train_all
 from dmo_jax.config import get_preset
 from dmo_jax.data import motions_fingerprint
 from dmo_jax.inference import Models, predict
@@ -46,7 +46,7 @@ TASK = "reach_target"
 COMMANDS = {
     "render": render.main, "execute": execute.main, "generate_data": generate_data.main,
     "task_report": task_report.main, "evaluate": evaluate.main, "train_all": train_all.main,
-    "cost": cost.main, "benchmark": benchmark.main, "compare": compare.main,
+    "cost": cost.main, "benchmark": benchmark.main, "compare": compare.main, "reproduce": reproduce.main,
 }
 
 
@@ -315,6 +315,10 @@ COMMAND_CASES = [
     _case("benchmark", ["--only", "encoder", "--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
     _case("benchmark", ["--only", "encoder", "--repeats", "0"], "--repeats must be a positive integer, got 0"),
     _case("benchmark", ["--only", "execution", "--episodes", "0"], "--episodes must be a positive integer, got 0"),
+    # bin/reproduce
+    _case("reproduce", ["--tables", "3"], "--tables '3': expected comma-separated tables of 1, 2, 4, 5, 6"),
+    _case("reproduce", ["--tables", "2", "--variants", "concat,cnn"],
+          "--variants 'concat,cnn': expected comma-separated variants of concat, wo_concat, gap, vit"),
     # bin/compare
     _case("compare", ["{missing}/eval.json"], "does_not_exist/eval.json: no such file"),
     _case("compare", ["{afile}"], "a_file.txt: not a readable JSON file"),

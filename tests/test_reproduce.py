@@ -28,6 +28,7 @@ def test_every_table_has_its_runs_and_the_papers_rows():
         assert runs and len({r.name for r in runs}) == len(runs)
         assert all(len(v) == 9 for v in reproduce.PAPER[table].values())
     assert {r.recipe for r in reproduce.table_runs("1", "bank")} == {None, "paper", "bank"}  # both recipes, the oracle
+    assert [r.variant for r in reproduce.table_runs("2", "bank", ("concat", "gap"))] == ["concat", "gap"]
     with pytest.raises(ValueError, match="unknown table '3'"):
         reproduce.table_runs("3", "bank")
 

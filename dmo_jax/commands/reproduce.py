@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from dmo_jax.commands.common import add_preset_argument, add_recipe_argument, fail
+from dmo_jax.config import VARIANTS
 from dmo_jax.reproduce import TABLES, TITLES, render, reproduce, update_report
 from envs.commands.common import BACKEND_HELP, default_data_dir, make_output_dir, positive, task_help, task_names
 from envs.platform import setup
@@ -25,6 +26,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tasks", default="all", help=task_help() + " (default all)")
     add_preset_argument(parser)
     add_recipe_argument(parser, "the networks of Tables 2, 4, 5 and 6 (Table 1 runs every recipe)")
+    parser.add_argument("--variants", default=",".join(VARIANTS),
+                        help=f"Table 2's architectures, comma-separated, of {', '.join(VARIANTS)} (default all; on 2 "
+                        "CPU cores vit trains about 20 times slower than concat)")
     parser.add_argument("--episodes", type=int, default=100, help="test scenes per task (default 100)")
     parser.add_argument("--data", help="dataset root (default ./data/<preset image size>px)")
     parser.add_argument("--workdir", default="runs", help="checkpoints (default ./runs)")
@@ -37,6 +41,9 @@ def main(argv: list[str] | None = None) -> None:
     tables = [t.strip() for t in args.tables.split(",") if t.strip()]
     if not tables or any(t not in TABLES for t in tables):
         fail(f"--tables {args.tables!r}: expected comma-separated tables of {', '.join(TABLES)}")
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    if not variants or any(v not in VARIANTS for v in variants):
+        fail(f"--variants {args.variants!r}: expected comma-separated variants of {', '.join(VARIANTS)}")
     positive("--episodes", args.episodes)
 
     from envs.dataset import DatasetError
@@ -57,7 +64,7 @@ def main(argv: list[str] | None = None) -> None:
     log = lambda m: print(m, file=sys.stderr)  # noqa: E731
     try:
         files = reproduce(tables, names, preset, args.episodes, results_dir=args.results, data=data,
-                          workdir=args.workdir, backend=args.backend, seed=args.seed,
+                          workdir=args.workdir, variants=variants, backend=args.backend, seed=args.seed,
                           command=sys.argv[1:] if argv is None else argv, log=log)
     except (DatasetError, training.TrainingError, ValueError, OSError) as err:
         fail(str(err))

@@ -38,12 +38,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"), help=BACKEND_HELP)
     parser.add_argument("--seed", type=int, default=0, help="training and prediction seed (default 0)")
     args = parser.parse_args(argv)
-    tables = [t.strip() for t in args.tables.split(",") if t.strip()]
-    if not tables or any(t not in TABLES for t in tables):
-        fail(f"--tables {args.tables!r}: expected comma-separated tables of {', '.join(TABLES)}")
-    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-    if not variants or any(v not in VARIANTS for v in variants):
-        fail(f"--variants {args.variants!r}: expected comma-separated variants of {', '.join(VARIANTS)}")
+    tables = _comma_list(args.tables, TABLES, "--tables", "tables")
+    variants = _comma_list(args.variants, VARIANTS, "--variants", "variants")
     positive("--episodes", args.episodes)
 
     from envs.dataset import DatasetError
@@ -72,3 +68,11 @@ def main(argv: list[str] | None = None) -> None:
     update_report(Path(args.report), sections)
     for table, body in sections.items():
         print(f"\n{TITLES[table]}\n\n{body}")
+
+
+def _comma_list(value: str, allowed, option: str, what: str) -> list[str]:
+    """The comma-separated items of ``value``, each one of ``allowed``; a one-line error otherwise."""
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    if not items or any(v not in allowed for v in items):
+        fail(f"{option} {value!r}: expected comma-separated {what} of {', '.join(allowed)}")
+    return items

@@ -63,7 +63,6 @@ def _signature(tree) -> tuple:
     return treedef, tuple(tuple(getattr(leaf, "shape", np.shape(leaf))) for leaf in leaves)
 
 
-@functools.lru_cache(maxsize=None)
 def _expected_params(preset: Preset, which: str):
     if which == "vae":
         return VAENet(preset.vae).param_shapes()

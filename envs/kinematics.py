@@ -138,13 +138,14 @@ def solve_ik(chain: ArmChain, target_pos: jnp.ndarray, target_rot: jnp.ndarray, 
     home = jnp.asarray(HOME_QPOS, jnp.float32)
     w = config.rotation_weight
 
-    def errors(q):
+    def at(i, q):
+        # The loop carries q with its forward kinematics and errors: computed once per iteration,
+        # read by both the stopping test and the next step.
         pos, rot, joint_pos, joint_axis = forward_kinematics(chain, q)
-        return pos, rot, joint_pos, joint_axis, target_pos - pos, rotation_error(rot, target_rot)
+        return i, q, (pos, rot, joint_pos, joint_axis, target_pos - pos, rotation_error(rot, target_rot))
 
     def step(carry):
-        i, q = carry
-        pos, rot, joint_pos, joint_axis, e_pos, _ = errors(q)
+        i, q, (pos, rot, joint_pos, joint_axis, e_pos, _) = carry
         # Small-angle orientation error: 0.5 * sum_i current_i x target_i (columns).
         e_rot = 0.5 * jnp.sum(jnp.cross(rot.T, target_rot.T), axis=0)
         err = jnp.concatenate([e_pos, w * e_rot])
@@ -153,18 +154,16 @@ def solve_ik(chain: ArmChain, target_pos: jnp.ndarray, target_rot: jnp.ndarray, 
         pinv = jac.T @ jnp.linalg.inv(jjt)
         dq = pinv @ err + config.nullspace_gain * (jnp.eye(7) - pinv @ jac) @ (home - q)
         dq = jnp.clip(dq, -config.max_step, config.max_step)
-        return i + 1, jnp.clip(q + dq, lower, upper)
+        return at(i + 1, jnp.clip(q + dq, lower, upper))
 
     def not_done(carry):
         # Stop early once the pose is 10x tighter than the tolerances (warm starts converge in a few steps).
-        i, q = carry
-        _, _, _, _, e_pos, rot_err = errors(q)
+        i, _, (*_, e_pos, rot_err) = carry
         converged = (jnp.linalg.norm(e_pos) < 0.1 * config.position_tolerance) & (
             rot_err < 0.1 * config.rotation_tolerance)
         return (i < config.iterations) & ~converged
 
-    _, q = jax.lax.while_loop(not_done, step, (0, jnp.asarray(q_init, jnp.float32)))
-    _, _, _, _, e_pos, rot_err = errors(q)
+    _, q, (*_, e_pos, rot_err) = jax.lax.while_loop(not_done, step, at(0, jnp.asarray(q_init, jnp.float32)))
     pos_err = jnp.linalg.norm(e_pos)
     reached = (pos_err < config.position_tolerance) & (rot_err < config.rotation_tolerance)
     return q, reached, pos_err, rot_err

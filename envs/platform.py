@@ -1,7 +1,9 @@
 """Process set-up the simulator needs: the headless OpenGL back-end and XLA's settings, applied
-before MuJoCo or JAX initialise (:func:`setup`); XLA's compilation cache."""
+before MuJoCo or JAX initialise (:func:`setup`); Python's garbage collector; XLA's compilation
+cache."""
 from __future__ import annotations
 
+import gc
 import os
 import sys
 
@@ -14,8 +16,8 @@ _CPU_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
 
 
 def setup() -> None:
-    """Select the headless OpenGL back-end (:func:`envs.gl.select_gl_backend`), then add XLA's
-    CPU flags (:func:`configure_jax_for_cpu`).
+    """Select the headless OpenGL back-end (:func:`envs.gl.select_gl_backend`), add XLA's CPU
+    flags (:func:`configure_jax_for_cpu`) and collect garbage less often (:func:`collect_garbage_rarely`).
 
     Must run before mujoco or jax are imported: MuJoCo reads ``MUJOCO_GL`` when its GL module is
     first imported, XLA reads ``XLA_FLAGS`` when JAX starts its backend. Settings the user made
@@ -23,6 +25,21 @@ def setup() -> None:
     """
     select_gl_backend()
     configure_jax_for_cpu()
+    collect_garbage_rarely()
+
+
+def collect_garbage_rarely() -> None:
+    """Run Python's cyclic garbage collector less often, and leave the objects alive now (the
+    libraries imported so far) out of its passes (``gc.freeze``).
+
+    Tracing a JAX program allocates millions of short-lived objects, and with the default
+    thresholds (700, 10, 10) the collector runs every few hundred of them: 14-20 % of the time of
+    the tests that trace the most, with the same peak memory (BENCHMARKS.md, "Test suite").
+    Call it again after the heavy imports to leave them out as well.
+    """
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(50_000, 20, 20)
 
 
 def add_xla_flag(flag: str) -> bool:

@@ -15,7 +15,7 @@ if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
 
 import pytest  # noqa: E402
 
-from envs.platform import add_xla_flag, enable_compilation_cache, setup  # noqa: E402
+from envs.platform import add_xla_flag, collect_garbage_rarely, enable_compilation_cache, setup  # noqa: E402
 
 # The tests run tiny networks on little data, so compiling is most of their time: XLA's CPU
 # back-end without its LLVM optimisations compiles the tiny preset's training in half the time.
@@ -25,6 +25,7 @@ setup()
 # The tests' own processes read and write the same cache: most tests build the same tiny networks
 # and training steps as other tests, which then load them instead of compiling them again.
 enable_compilation_cache()
+collect_garbage_rarely()  # again, now that jax is imported
 
 from helpers import built_once  # noqa: E402
 

@@ -85,14 +85,15 @@ def expose_cpu_cores_as_devices() -> None:
         add_xla_flag(f"--xla_force_host_platform_device_count={cores}")
 
 
-def enable_compilation_cache() -> str | None:
+def enable_compilation_cache(min_compile_seconds: float = 0.0) -> str | None:
     """Keep XLA's compiled programs on disk so later runs skip compilation.
 
     Compiling the cpu preset's three training steps and their evaluations takes about
     1.5 minutes on 2 cores (BENCHMARKS.md); every task after the first, and every resumed run, reuses them
     (the cache key covers the program, the XLA flags and the JAX version). The directory
     is ``$DMO_JAX_COMPILATION_CACHE`` (``off`` disables it), by default
-    ``~/.cache/dmo_jax/xla``. Returns the directory in use, or None.
+    ``~/.cache/dmo_jax/xla``. Programs that compile in less than ``min_compile_seconds`` are not
+    kept. Returns the directory in use, or None.
     """
     default = os.path.join(os.path.expanduser("~"), ".cache", "dmo_jax", "xla")
     path = os.environ.get("DMO_JAX_COMPILATION_CACHE", default)
@@ -101,8 +102,8 @@ def enable_compilation_cache() -> str | None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", path)
-    # 0: also keep the few hundred small programs that run op by op (Flax's initialisers, the
-    # optimiser's state): about 25 s of every new process's compilation for the cpu preset's
-    # three networks, 7 s when read back (3 MB; BENCHMARKS.md)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # 0 (the default): also keep the few hundred small programs that run op by op (Flax's
+    # initialisers, the optimiser's state): about 25 s of every new process's compilation for the
+    # cpu preset's three networks, 7 s when read back (3 MB; BENCHMARKS.md)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_seconds)
     return path

@@ -23,8 +23,11 @@ from envs.platform import add_xla_flag, collect_garbage_rarely, enable_compilati
 add_xla_flag("--xla_backend_optimization_level=0")
 setup()
 # The tests' own processes read and write the same cache: most tests build the same tiny networks
-# and training steps as other tests, which then load them instead of compiling them again.
-enable_compilation_cache()
+# and training steps as other tests, which then load them instead of compiling them again. The
+# thousands of small programs they run op by op cost about as much to write as to compile, so
+# they are not kept (about 30-70 s less CPU for the suite; BENCHMARKS.md, "Test suite"); a command
+# a test runs in-process sets the commands' own threshold, 0, from then on in that process.
+enable_compilation_cache(min_compile_seconds=0.1)
 collect_garbage_rarely()  # again, now that jax is imported
 
 from helpers import built_once  # noqa: E402

@@ -355,13 +355,37 @@ def _refine_one(preset: Preset, method: str, R: int, chunk: int, settings: Optim
     return Prediction(cands[0], cands, energies)
 
 
-@functools.partial(jax.jit, static_argnames=("preset", "n", "chunk", "coarse"))
-def _top_candidates_jit(models, image, bank, *, preset, n, chunk, coarse):
-    one = functools.partial(_top_n, preset, n, chunk, coarse, models)
+def image_devices(batch: int) -> int:
+    """How many local devices a batch of ``batch`` images is split over: the most that split it
+    evenly. On a CPU whose cores are exposed as devices (``envs.platform.expose_cpu_cores_as_devices``)
+    each core then scores its own images, where one program runs most of its small ops on one
+    thread; on one accelerator, 1."""
+    devices = len(jax.local_devices())
+    return max(k for k in range(1, min(devices, batch) + 1) if batch % k == 0)
+
+
+def split_over_devices(fn: Callable, devices: int, replicated, *batched):
+    """``fn(*replicated, *batched)``, with every array of ``batched`` split along its leading axis
+    over the first ``devices`` local devices (each runs ``fn`` on its part) and ``replicated``
+    (a tuple) given whole to each; the results are joined along their leading axis. Each device
+    runs the program one device would run on its part, so the results are the same."""
+    if devices == 1:
+        return fn(*replicated, *batched)
+    mesh = jax.sharding.Mesh(np.asarray(jax.local_devices()[:devices]), ("images",))
+    spec = jax.sharding.PartitionSpec("images")
+    return jax.shard_map(fn, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(),) * len(replicated)
+                         + (spec,) * len(batched), out_specs=spec)(*replicated, *batched)
+
+
+@functools.partial(jax.jit, static_argnames=("preset", "n", "chunk", "coarse", "devices"))
+def _top_candidates_jit(models, image, bank, *, preset, n, chunk, coarse, devices=1):
+    one = functools.partial(_top_n, preset, n, chunk, coarse)
+    if image.ndim == 3:
+        return one(models, image, bank)
     # A batch is scored one image after another: vmapped, B images would hold B chunks of the
     # head's activations at once (10 images x 256 motions of the ViT variant's 357-token
     # attention: 17 GB resident in bin/evaluate).
-    return one(image, bank) if image.ndim == 3 else jax.lax.map(lambda x: one(x, bank), image)
+    return split_over_devices(lambda m, b, x: jax.lax.map(lambda i: one(m, i, b), x), devices, (models, bank), image)
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "R", "chunk", "settings"))
@@ -372,9 +396,10 @@ def _refine_jit(models, image, ranking, key, *, preset, method, R, chunk, settin
     return jax.vmap(one)(image, ranking, jax.random.split(key, image.shape[0]))
 
 
-@functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings", "coarse"))
-def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings, coarse):
-    ranking = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse)
+@functools.partial(jax.jit, static_argnames=("preset", "method", "n", "R", "chunk", "settings", "coarse", "devices"))
+def _predict_jit(models, image, bank, key, *, preset, method, n, R, chunk, settings, coarse, devices=1):
+    ranking = _top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse,
+                                  devices=devices)
     return _refine_jit(models, image, ranking, key, preset=preset, method=method, R=R, chunk=chunk, settings=settings)
 
 
@@ -422,7 +447,7 @@ def predict(models: Models, image: jax.Array, bank: jax.Array, key: jax.Array, *
                                                             coarse=coarse)
     return _finite(_predict_jit(models, image, bank, key, preset=preset, method=method, n=n,
                                 R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings,
-                                coarse=coarse))
+                                coarse=coarse, devices=_devices_for(image)))
 
 
 def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset: Preset, n: int = 8,
@@ -439,7 +464,8 @@ def top_candidates(models: Models, image: jax.Array, bank: jax.Array, *, preset:
     """
     preset, image, bank, _, chunk, coarse = _checked_call(models, preset, "sort", image, bank, None, n, 0, chunk,
                                                           coarse=coarse)
-    return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse))
+    return _finite(_top_candidates_jit(models, image, bank, preset=preset, n=n, chunk=chunk, coarse=coarse,
+                                       devices=_devices_for(image)))
 
 
 def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: jax.Array, *, preset: Preset,
@@ -465,6 +491,11 @@ def refine(models: Models, image: jax.Array, start: Ranking | jax.Array, key: ja
                                                     "start")
     return _finite(_refine_jit(models, image, ranking._replace(motions=motions), key, preset=preset, method=method,
                                R=R if method in METHODS_USING_R else 0, chunk=chunk, settings=settings))
+
+
+def _devices_for(image) -> int:
+    """:func:`image_devices` for a concrete batch of images; 1 for one image or inside a caller's jit."""
+    return image_devices(image.shape[0]) if image.ndim == 4 and is_concrete(image) else 1
 
 
 def _finite(result):

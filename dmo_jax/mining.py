@@ -27,17 +27,18 @@ from envs.progress import Progress
 
 from .config import Preset
 from .data import MotionDataset, motions_fingerprint
-from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk
+from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk, image_devices, split_over_devices
 from .networks import EBMNet
 
 INDEX_FILE, INFO_FILE = "mined.npy", "mined.json"
 
 
-@functools.partial(jax.jit, static_argnames=("preset", "k", "chunk", "coarse"))
-def _ranked(params, images, cache, *, preset, k, chunk, coarse):
+@functools.partial(jax.jit, static_argnames=("preset", "k", "chunk", "coarse", "devices"))
+def _ranked(params, images, cache, *, preset, k, chunk, coarse, devices):
     ebm = EBMNet(preset)
-    return jax.lax.map(lambda image: bank_top_n(ebm, params, ebm.encode(params, image), cache, k, chunk, coarse)[0],
-                       images)
+    one = lambda p, c, image: bank_top_n(ebm, p, ebm.encode(p, image), c, k, chunk, coarse)[0]
+    return split_over_devices(lambda p, c, x: jax.lax.map(lambda image: one(p, c, image), x), devices,
+                              (params, cache), images)
 
 
 def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, batch: int = 10,
@@ -54,8 +55,9 @@ def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, ba
     log(f"ranking the bank with the EBM for {n} training images (each image's {k} lowest-energy other motions)")
     progress, parts = Progress("rank the bank", n), []
     for i in range(0, n, batch):
-        parts.append(np.asarray(_ranked(ebm_params, jnp.asarray(dataset.images[i:i + batch]), cache, preset=preset,
-                                        k=k + 1, chunk=chunk, coarse=coarse)))
+        images = dataset.images[i:i + batch]
+        parts.append(np.asarray(_ranked(ebm_params, jnp.asarray(images), cache, preset=preset, k=k + 1, chunk=chunk,
+                                        coarse=coarse, devices=image_devices(len(images)))))
         progress.update(min(i + batch, n))
     progress.close()
     top = np.concatenate(parts)

@@ -1,6 +1,11 @@
 """Inference and baselines: predict() under jit and vmap, the full-bank/R=0 case,
 zero-step baselines, the Langevin sampler's stationary law, and the evaluation path."""
 import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -259,3 +264,40 @@ def test_the_no_reuse_benchmark_computes_what_predict_computes(models, bank):
     out = predict(models, image, bank, jax.random.key(0), preset=TINY, method="dmo", n=3, R=1)
     plain = jax.jit(lambda m, i, b: predict_without_reuse(m, i, b, preset=TINY, n=3, R=1, chunk=4))
     np.testing.assert_allclose(plain(models, image, bank), out.motion, rtol=1e-4, atol=1e-4)
+
+
+_SPLIT_OVER_TWO_DEVICES = r"""
+import sys, json
+sys.path.insert(0, sys.argv[1])
+sys.path.insert(0, sys.argv[1] + "/tests")
+from envs.platform import setup
+setup()
+import jax, numpy as np
+from dmo_jax import inference
+from dmo_jax.config import CoarseRanking, get_preset
+from dmo_jax.networks import EBMNet
+from helpers import random_motions, random_params
+assert jax.device_count() == 2, jax.devices()
+p = get_preset("tiny")
+models = inference.Models(random_params(EBMNet(p), 0))
+bank = inference.cache_bank(models, inference.project_motions(random_motions(jax.random.key(3), 12)), preset=p)
+images = jax.random.uniform(jax.random.key(4), (4, p.image_size, p.image_size, 4))
+coarse = CoarseRanking(stride=6, keep=6)
+split = inference.top_candidates(models, images, bank, preset=p, n=3, coarse=coarse)
+whole = inference._top_candidates_jit(models, images, bank, preset=p, n=3, chunk=inference.default_chunk(),
+                                      coarse=coarse, devices=1)
+print(json.dumps({"devices": [inference.image_devices(b) for b in (1, 3, 4)],
+                  "split_on": len(split.energies.sharding.device_set), "whole_on": len(whole.energies.sharding.device_set),
+                  "equal": all(bool(np.array_equal(a, b)) for a, b in zip(split, whole))}))
+"""
+
+
+def test_a_batch_ranked_over_two_devices_equals_it_ranked_on_one():
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
+    proc = subprocess.run([sys.executable, "-c", _SPLIT_OVER_TWO_DEVICES, str(Path(__file__).parents[1])], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert r["devices"] == [1, 1, 2]  # the most devices that split the batch evenly
+    assert (r["split_on"], r["whole_on"]) == (2, 1)
+    assert r["equal"]  # motions, energies and F, bit for bit

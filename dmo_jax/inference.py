@@ -364,17 +364,20 @@ def image_devices(batch: int) -> int:
     return max(k for k in range(1, min(devices, batch) + 1) if batch % k == 0)
 
 
-def split_over_devices(fn: Callable, devices: int, replicated, *batched):
-    """``fn(*replicated, *batched)``, with every array of ``batched`` split along its leading axis
-    over the first ``devices`` local devices (each runs ``fn`` on its part) and ``replicated``
-    (a tuple) given whole to each; the results are joined along their leading axis. Each device
-    runs the program one device would run on its part, so the results are the same."""
+def map_over_images(one: Callable, devices: int, replicated: tuple, images):
+    """``one(*replicated, image)`` for each of ``images [B, ...]``, one image after another, with the
+    images split along B over the first ``devices`` local devices (``replicated`` given whole to
+    each); the results are joined along B. Each device runs the program one device would run on
+    its part, so the results are the same."""
+    def mapped(*args):
+        return jax.lax.map(lambda image: one(*args[:-1], image), args[-1])
+
     if devices == 1:
-        return fn(*replicated, *batched)
+        return mapped(*replicated, images)
     mesh = jax.sharding.Mesh(np.asarray(jax.local_devices()[:devices]), ("images",))
-    spec = jax.sharding.PartitionSpec("images")
-    return jax.shard_map(fn, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(),) * len(replicated)
-                         + (spec,) * len(batched), out_specs=spec)(*replicated, *batched)
+    P = jax.sharding.PartitionSpec
+    return jax.shard_map(mapped, mesh=mesh, in_specs=(P(),) * len(replicated) + (P("images"),),
+                         out_specs=P("images"))(*replicated, images)
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "n", "chunk", "coarse", "devices"))
@@ -385,7 +388,7 @@ def _top_candidates_jit(models, image, bank, *, preset, n, chunk, coarse, device
     # A batch is scored one image after another: vmapped, B images would hold B chunks of the
     # head's activations at once (10 images x 256 motions of the ViT variant's 357-token
     # attention: 17 GB resident in bin/evaluate).
-    return split_over_devices(lambda m, b, x: jax.lax.map(lambda i: one(m, i, b), x), devices, (models, bank), image)
+    return map_over_images(lambda m, b, x: one(m, x, b), devices, (models, bank), image)
 
 
 @functools.partial(jax.jit, static_argnames=("preset", "method", "R", "chunk", "settings"))

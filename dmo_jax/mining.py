@@ -27,7 +27,7 @@ from envs.progress import Progress
 
 from .config import Preset
 from .data import MotionDataset, motions_fingerprint
-from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk, image_devices, split_over_devices
+from .inference import Models, applicable_coarse, bank_top_n, cache_bank, default_chunk, image_devices, map_over_images
 from .networks import EBMNet
 
 INDEX_FILE, INFO_FILE = "mined.npy", "mined.json"
@@ -36,9 +36,8 @@ INDEX_FILE, INFO_FILE = "mined.npy", "mined.json"
 @functools.partial(jax.jit, static_argnames=("preset", "k", "chunk", "coarse", "devices"))
 def _ranked(params, images, cache, *, preset, k, chunk, coarse, devices):
     ebm = EBMNet(preset)
-    one = lambda p, c, image: bank_top_n(ebm, p, ebm.encode(p, image), c, k, chunk, coarse)[0]
-    return split_over_devices(lambda p, c, x: jax.lax.map(lambda image: one(p, c, image), x), devices,
-                              (params, cache), images)
+    return map_over_images(lambda p, c, image: bank_top_n(ebm, p, ebm.encode(p, image), c, k, chunk, coarse)[0],
+                           devices, (params, cache), images)
 
 
 def ranked_rivals(ebm_params, preset: Preset, dataset: MotionDataset, k: int, batch: int = 10,

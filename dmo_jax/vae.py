@@ -153,7 +153,8 @@ class VAENet(PureNet):
         return MotionVAE(self.config)
 
     def _example_inputs(self) -> tuple:
-        return jnp.zeros((1, NUM_STEPS, POSE_DIM), jnp.float32), jax.random.key(0)  # one motion, the noise key
+        # one motion, the noise key
+        return jax.ShapeDtypeStruct((1, NUM_STEPS, POSE_DIM), jnp.float32), jax.eval_shape(jax.random.key, 0)
 
     def init_at_mean(self, rng, mean_pose) -> Params:
         """Initial parameters whose decoder outputs ``mean_pose [11]`` (the training motions'

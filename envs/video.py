@@ -8,6 +8,7 @@ matplotlib's Agg back-end and never open a window.
 """
 from __future__ import annotations
 
+import copy
 import warnings
 from pathlib import Path
 
@@ -88,7 +89,11 @@ def render_rollout(world: World, scenes: SceneBatch, qpos: np.ndarray, episode: 
                    every: int = 4) -> np.ndarray:
     """Front-camera RGB frames ``[F, size, size, 3]`` of episode ``episode`` of an executed
     batch: its initial state, then ``qpos [E, W, nq]`` after every ``every``-th waypoint."""
-    model = scenes.model_for(world.model, episode)
+    model = copy.copy(scenes.model_for(world.model, episode))
+    # Shadows are most of a frame's software rendering: a shadow map of twice the frame's side
+    # instead of the scene's 2,048 looks the same (a mean difference of 0.1 in 255 at 256 px) and
+    # renders a frame in 23 instead of 41 ms on 2 cores.
+    model.vis.quality.shadowsize = min(model.vis.quality.shadowsize, 2 * size)
     data = mujoco.MjData(model)
     states = [scenes.qpos[episode]] + list(qpos[episode, every - 1::every])
     frames = []

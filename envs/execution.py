@@ -128,10 +128,17 @@ class Plan:
     abandoned: np.ndarray
 
 
-@functools.partial(jax.jit, static_argnames=("chain", "image_size", "ik"))
-def _plan_jit(motions, q_start, camera_pos, camera_rot, intrinsics, *, chain, image_size, ik):
-    pos, rot, _ = motion_lib.vector_to_pose(motions, camera_pos, camera_rot, intrinsics, image_size)
-    return jax.vmap(lambda p, r, q: solve_ik_path(chain, p, r, q, ik))(pos, rot, q_start)
+@functools.partial(jax.jit, static_argnames=("chain", "image_size", "ik", "devices"))
+def _plan_jit(motions, q_start, camera_pos, camera_rot, intrinsics, *, chain, image_size, ik, devices):
+    def paths(motions, q_start):
+        pos, rot, _ = motion_lib.vector_to_pose(motions, camera_pos, camera_rot, intrinsics, image_size)
+        return jax.vmap(lambda p, r, q: solve_ik_path(chain, p, r, q, ik))(pos, rot, q_start)
+
+    if devices == 1:
+        return paths(motions, q_start)
+    mesh = jax.sharding.Mesh(np.asarray(jax.local_devices()[:devices]), ("motions",))
+    spec = jax.sharding.PartitionSpec("motions")
+    return jax.shard_map(paths, mesh=mesh, in_specs=(spec, spec), out_specs=spec)(motions, q_start)
 
 
 def _check_motions(motions: np.ndarray) -> np.ndarray:
@@ -154,13 +161,19 @@ def plan(world: World, motions: np.ndarray, scenes: SceneBatch, config: Executio
         raise ValueError(f"{len(motions)} motions for {len(scenes)} scenes")
     cam = world.camera
     q_start = scenes.qpos[:, world.chain.qpos_index]
+    # Each motion's IK runs on one thread; with the CPU cores exposed as devices
+    # (envs.platform.expose_cpu_cores_as_devices) each device solves its share of the motions
+    # (padded to a multiple of the device count with copies of the last), the same numbers.
+    e, devices = len(motions), min(len(jax.local_devices()), len(motions))
+    pad = -e % devices
     qs, reached = _plan_jit(
-        jnp.asarray(motions), jnp.asarray(q_start, jnp.float32),
+        jnp.asarray(np.concatenate([motions, np.repeat(motions[-1:], pad, 0)])),
+        jnp.asarray(np.concatenate([q_start, np.repeat(q_start[-1:], pad, 0)]), jnp.float32),
         jnp.asarray(cam.position, jnp.float32), jnp.asarray(cam.rotation, jnp.float32),
         jnp.asarray(cam.intrinsics, jnp.float32),
-        chain=world.chain, image_size=cam.image_size, ik=config.ik,
+        chain=world.chain, image_size=cam.image_size, ik=config.ik, devices=devices,
     )
-    reached = np.asarray(reached)
+    qs, reached = qs[:e], np.asarray(reached)[:e]
     failed = np.cumsum(~reached, axis=1)
     valid = failed <= config.max_failed_waypoints
     # A skipped waypoint applies neither its arm target nor its gripper command.

@@ -1,4 +1,6 @@
 """Motion execution: planning, controls, the native and MJX back-ends, success bookkeeping."""
+import json
+
 import mujoco
 import numpy as np
 import pytest
@@ -123,3 +125,38 @@ def test_bad_motions_fail_clearly(motions, match):
 def test_unknown_backend_fails_clearly():
     with pytest.raises(ValueError, match="back-end"):
         execute(WORLD, PICK, WORLD.default_scenes(1), LIFTED, backend="bullet")
+
+
+_PLAN_ON_TWO_DEVICES = r"""
+import sys, json
+sys.path.insert(0, sys.argv[1])
+from envs.platform import setup
+setup()
+import jax, numpy as np
+from envs import demo, execution
+assert jax.device_count() == 2, jax.devices()
+world = demo.default_world(64)
+pick = demo.pick_cube_motion(world)
+far = pick.copy()
+far[20:35, 2] += 4.0  # out of reach: skipped waypoints, then abandoned
+motions = np.stack([pick, far, pick + 0.01])  # 3: the split pads one copy
+split = execution.plan(world, motions, world.default_scenes(3))
+whole = [execution.plan(world, m[None], world.default_scenes(1)) for m in motions]
+print(json.dumps({"equal": all(np.array_equal(getattr(split, f)[i], getattr(w, f)[0]) for i, w in enumerate(whole)
+                                for f in ("arm_targets", "gripper", "reached", "valid", "abandoned")),
+                  "abandoned": split.abandoned.tolist()}))
+"""
+
+
+def test_the_plan_split_over_two_devices_equals_each_motion_planned_alone():
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
+    proc = subprocess.run([sys.executable, "-c", _PLAN_ON_TWO_DEVICES, str(Path(__file__).parents[1])], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert r["abandoned"] == [False, True, False] and r["equal"]  # bit for bit

@@ -10,10 +10,12 @@ from dmo_jax.commands.common import (add_preset_argument, add_recipe_argument, a
                                      parse_sweep, write_json)
 from envs.commands.common import (BACKEND_HELP, check_output_file, check_seed, check_writable_dir, default_data_dir,
                                   positive, task_help, task_names)
-from envs.platform import setup
+from envs.platform import expose_cpu_cores_as_devices, setup
 
 
 def main(argv: list[str] | None = None) -> None:
+    if argv is None:  # this process is the command: each core ranks its share of the images, the same results
+        expose_cpu_cores_as_devices()
     setup()  # the headless GL and XLA back-ends, before mujoco or jax are imported
 
     from dmo_jax.config import VARIANTS

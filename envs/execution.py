@@ -3,9 +3,9 @@
 The pipeline (docs/method.md, "Execution and success"):
 
 1. :func:`plan` turns each motion's 101 camera-frame poses into world TCP targets and
-   solves IK for them in order (damped least squares, warm-started, jit + vmap). A
-   waypoint the IK cannot reach is skipped; once more than ``max_failed_waypoints``
-   have failed the motion is abandoned.
+   solves IK for them in order (damped least squares, warm-started, jit + vmap, the
+   motions split over the local devices). A waypoint the IK cannot reach is skipped;
+   once more than ``max_failed_waypoints`` have failed the motion is abandoned.
 2. :func:`controls` holds every waypoint for ``substeps`` physics steps: the arm's
    position targets ramp linearly to the waypoint over ``ramp_steps``, then the gripper
    command (open if grasp > 0.5) is applied.

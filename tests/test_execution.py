@@ -1,5 +1,9 @@
 """Motion execution: planning, controls, the native and MJX back-ends, success bookkeeping."""
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -149,11 +153,6 @@ print(json.dumps({"equal": all(np.array_equal(getattr(split, f)[i], getattr(w, f
 
 
 def test_the_plan_split_over_two_devices_equals_each_motion_planned_alone():
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
     proc = subprocess.run([sys.executable, "-c", _PLAN_ON_TWO_DEVICES, str(Path(__file__).parents[1])], env=env,
                           capture_output=True, text=True, timeout=600)

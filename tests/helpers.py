@@ -2,6 +2,9 @@
 built once per run of the suite and shared by its worker processes."""
 import fcntl
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -52,3 +55,14 @@ def built_once(tmp_path_factory, worker_id: str, name: str, build: Callable[[Pat
             root.mkdir(exist_ok=True)
             done.write_text(json.dumps(build(root)))
     return root, json.loads(done.read_text())
+
+
+def run_on_two_devices(script: str) -> dict:
+    """Run the Python ``script`` in a subprocess whose host platform has two devices (with the
+    suite's XLA flags, conftest.py; ``sys.argv[1]`` is the repository root) and return the JSON
+    object its last line of stdout prints."""
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
+    proc = subprocess.run([sys.executable, "-c", script, str(Path(__file__).resolve().parents[1])], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])

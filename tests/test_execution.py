@@ -1,10 +1,4 @@
 """Motion execution: planning, controls, the native and MJX back-ends, success bookkeeping."""
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import mujoco
 import numpy as np
 import pytest
@@ -12,6 +6,7 @@ import pytest
 from envs import demo, execution
 from envs import motion as M
 from envs.execution import ExecutionConfig, controls, execute, plan
+from helpers import run_on_two_devices
 
 WORLD = demo.default_world(256)
 PICK = demo.pick_cube_motion(WORLD)
@@ -153,9 +148,5 @@ print(json.dumps({"equal": all(np.array_equal(getattr(split, f)[i], getattr(w, f
 
 
 def test_the_plan_split_over_two_devices_equals_each_motion_planned_alone():
-    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
-    proc = subprocess.run([sys.executable, "-c", _PLAN_ON_TWO_DEVICES, str(Path(__file__).parents[1])], env=env,
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    r = run_on_two_devices(_PLAN_ON_TWO_DEVICES)
     assert r["abandoned"] == [False, True, False] and r["equal"]  # bit for bit

@@ -1,11 +1,6 @@
 """Inference and baselines: predict() under jit and vmap, the full-bank/R=0 case,
 zero-step baselines, the Langevin sampler's stationary law, and the evaluation path."""
 import dataclasses
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +12,7 @@ from dmo_jax.config import get_preset
 from dmo_jax.inference import Models, OptimizerSettings, predict
 from dmo_jax.networks import DMONet, EBMNet
 from dmo_jax.vae import VAENet
-from helpers import random_motions, random_params
+from helpers import random_motions, random_params, run_on_two_devices
 
 TINY = get_preset("tiny")
 
@@ -293,11 +288,7 @@ print(json.dumps({"devices": [inference.image_devices(b) for b in (1, 3, 4)],
 
 
 def test_a_batch_ranked_over_two_devices_equals_it_ranked_on_one():
-    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
-    proc = subprocess.run([sys.executable, "-c", _SPLIT_OVER_TWO_DEVICES, str(Path(__file__).parents[1])], env=env,
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    r = run_on_two_devices(_SPLIT_OVER_TWO_DEVICES)
     assert r["devices"] == [1, 1, 2]  # the most devices that split the batch evenly
     assert (r["split_on"], r["whole_on"]) == (2, 1)
     assert r["equal"]  # motions, energies and F, bit for bit

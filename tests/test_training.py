@@ -3,8 +3,6 @@ describe themselves."""
 import dataclasses
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import jax
@@ -17,8 +15,8 @@ from dmo_jax import training
 from dmo_jax.config import get_preset, preset_record
 from envs import dataset
 from envs.tasks import get_task
+from helpers import run_on_two_devices
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = get_preset("tiny")
 
 
@@ -277,12 +275,7 @@ print(json.dumps({"loss_one": out["one"][1], "loss_two": out["two"][1], "grad_sc
 
 
 def test_two_device_step_equals_one_device_step(tmp_path):
-    # the suite's XLA flags (conftest.py) and two host devices
-    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"}
-    proc = subprocess.run([sys.executable, "-c", _TWO_DEVICES, str(ROOT)], env=env,
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    r = run_on_two_devices(_TWO_DEVICES)
     assert r["devices_two"] == 2  # parameters really live on both devices
     assert r["loss_two"] == pytest.approx(r["loss_one"], rel=1e-5)
     assert r["grad_scale"] > 1e-5

@@ -168,6 +168,35 @@ def choice_table(choices: dict[str, dict[str, dict]]) -> str:
     return "\n".join(chosen) + "\n\n" + "\n".join(alone)
 
 
+def precision_table(choices: dict[str, dict[str, dict]]) -> str:
+    """Markdown: for each row of ``choices`` (:func:`load_choices`) that records it, how often one of
+    its candidates executed alone succeeds, by the candidate's distance from the demonstration
+    (``success_by_error`` of ``evaluation.candidate_outcomes``; rows of the table) and task
+    (columns), in % with the number of candidates; then how often the candidate nearest the
+    demonstration solves its scene. Empty when no row records it."""
+    from envs.evaluation import ABBREVIATIONS, TASK_ORDER
+
+    tables = []
+    for label, per_task in choices.items():
+        tasks = [t for t in TASK_ORDER if "success_by_error" in per_task.get(t, {})]
+        if not tasks:
+            continue
+        lines = [f"| {label}: a candidate succeeds alone, % (candidates), by its distance from the "
+                 "demonstration | " + " | ".join(ABBREVIATIONS[t] for t in tasks) + " |", "|---" * (len(tasks) + 1) + "|"]
+        for i, first in enumerate(per_task[tasks[0]]["success_by_error"]):
+            low, high = 100 * first["from_m"], first["to_m"]
+            name = f"{low:g}–{100 * high:g} cm" if high is not None else f"≥ {low:g} cm"
+            cells = []
+            for t in tasks:
+                b = per_task[t]["success_by_error"][i]
+                cells.append("–" if b["success_rate"] is None else f"{100 * b['success_rate']:.0f} ({b['candidates']:,})")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append("| the candidate nearest the demonstration solves its scene | " + " | ".join(
+            f"{100 * per_task[t]['nearest_candidate_solves']:.0f}" for t in tasks) + " |")
+        tables.append("\n".join(lines))
+    return "\n\n".join(tables)
+
+
 def select_rows(rows: Rows, labels: list[str]) -> Rows:
     """``rows`` restricted to ``labels``, in that order."""
     missing = [label for label in labels if label not in rows]

@@ -112,6 +112,21 @@ def prediction_key(method: str, n: int, R: int) -> tuple:
     return method, n, R if method in METHODS_USING_R else None
 
 
+@functools.partial(jax.jit, static_argnames="image_size")
+def _candidate_errors(candidates, demonstrations, intrinsics, image_size: int):
+    from .losses import position_error
+
+    error = lambda m, d: position_error(m, d, intrinsics, image_size)  # noqa: E731
+    return jax.vmap(jax.vmap(error, (0, None)))(candidates, demonstrations)
+
+
+def candidate_errors(candidates: np.ndarray, demonstrations: np.ndarray, intrinsics, image_size: int) -> np.ndarray:
+    """``float32 [E, K]``: the mean 3-D position error (metres, ``losses.position_error``) of each of
+    ``candidates [E, K, 101, 11]`` against its scene's demonstration ``[E, 101, 11]``."""
+    return np.asarray(_candidate_errors(np.asarray(candidates, np.float32), np.asarray(demonstrations, np.float32),
+                                        np.asarray(intrinsics, np.float32), image_size))
+
+
 def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstrations: np.ndarray, intrinsics,
                        image_size: int, camera_pose: tuple | None = None) -> dict:
     """Where the ranked ``candidates [E, K, 101, 11]`` lie against the scenes' demonstrations,
@@ -128,12 +143,8 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     demonstration's (signed, mean over episodes; what decides a press or a placement)."""
     import jax.numpy as jnp
 
-    from .losses import position_error
-
-    error = jax.jit(jax.vmap(jax.vmap(lambda m, d: position_error(m, d, intrinsics, image_size), (0, None))))
-    demos = jnp.asarray(demonstrations, jnp.float32)
-    start_errors = np.asarray(error(jnp.asarray(starts), demos))
-    errors = np.asarray(error(jnp.asarray(candidates), demos))  # [E, K]
+    start_errors = candidate_errors(starts, demonstrations, intrinsics, image_size)
+    errors = candidate_errors(candidates, demonstrations, intrinsics, image_size)
     is_start = _among(candidates, starts)  # [E, K]
     depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
     out = {"first_error_m": round(float(np.mean(errors[:, 0])), 4),
@@ -154,22 +165,50 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     return out
 
 
-def candidate_outcomes(success: np.ndarray, is_start: np.ndarray, energies: np.ndarray) -> dict:
+def candidate_outcomes(success: np.ndarray, is_start: np.ndarray, energies: np.ndarray, errors: np.ndarray) -> dict:
     """What a method's choice among its ranked candidates costs: given the ``success [E, K]`` of
     each candidate executed alone (``envs.evaluation.run_each_candidate``), which of them are
-    bank motions (``is_start [E, K]``) and their ``energies [E, K]``,
+    bank motions (``is_start [E, K]``), their ``energies [E, K]`` and their distances from the
+    demonstration (``errors [E, K]``, metres, :func:`candidate_errors`):
     ``some_candidate_solves`` / ``some_start_solves``, the fraction of scenes one of the candidates
     (of the starts) solves; ``start_success_rate`` / ``optimised_success_rate``, the mean success of
-    a start and of an optimised motion; and the per-scene arrays, for other selection rules."""
+    a start and of an optimised motion; ``nearest_candidate_solves``, the fraction of scenes the
+    candidate nearest the demonstration solves; ``success_by_error``, how often a candidate
+    succeeds by its distance from the demonstration (:data:`ERROR_BINS`; how precise a motion
+    must be); and the per-scene arrays, for other selection rules."""
     success, is_start = np.asarray(success, bool), np.asarray(is_start, bool)
+    errors = np.asarray(errors, np.float64)
+    nearest = success[np.arange(len(success)), errors.argmin(axis=1)]
     out = {"some_candidate_solves": round(float(success.any(axis=1).mean()), 4),
            "some_start_solves": round(float((success & is_start).any(axis=1).mean()), 4),
-           "start_success_rate": round(float(success[is_start].mean()), 4)}
+           "start_success_rate": round(float(success[is_start].mean()), 4),
+           "nearest_candidate_solves": round(float(nearest.mean()), 4),
+           "success_by_error": success_by_error(success, errors)}
     if (~is_start).any():
         out["optimised_success_rate"] = round(float(success[~is_start].mean()), 4)
     return {**out, "candidate_success": success.astype(int).tolist(),
             "candidate_is_start": is_start.astype(int).tolist(),
-            "candidate_energies": np.round(np.asarray(energies, np.float64), 4).tolist()}
+            "candidate_energies": np.round(np.asarray(energies, np.float64), 4).tolist(),
+            "candidate_error_m": np.round(errors, 4).tolist()}
+
+
+#: Upper edges (metres) of the distance bins of :func:`success_by_error`; the last bin is open.
+ERROR_BINS = (0.005, 0.01, 0.015, 0.02, 0.03)
+
+
+def success_by_error(success: np.ndarray, errors: np.ndarray) -> list[dict]:
+    """Per bin of distance from the demonstration (:data:`ERROR_BINS`, then all farther), the
+    candidates in it and the fraction of them that succeed: ``[{"from_m", "to_m" (None: open),
+    "candidates", "success_rate" (None: no candidate)}]``, from ``success [E, K]`` and ``errors
+    [E, K]`` (metres)."""
+    success, errors = np.asarray(success, bool).ravel(), np.asarray(errors, np.float64).ravel()
+    edges = (0.0,) + ERROR_BINS + (np.inf,)
+    bins = []
+    for low, high in zip(edges[:-1], edges[1:]):
+        inside = (errors >= low) & (errors < high)
+        bins.append({"from_m": low, "to_m": None if np.isinf(high) else high, "candidates": int(inside.sum()),
+                     "success_rate": round(float(success[inside].mean()), 4) if inside.any() else None})
+    return bins
 
 
 def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, workdir, data_root,
@@ -228,8 +267,9 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
         diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
                                          preset.image_size, (test.meta["camera_position"], test.meta["camera_rotation"]))
         if each_candidate:
+            errors = candidate_errors(cands, test.motions[:episodes], intrinsics, preset.image_size)
             diagnostics.update(candidate_outcomes(evaluation.run_each_candidate(task_name, test, cands, backend),
-                                                  _among(cands, starts[:, :n]), energies))
+                                                  _among(cands, starts[:, :n]), energies, errors))
         results.append({"method": method, "n": n, "R": R, **result,
                         "predict_seconds": round(seconds["bank"] + seconds[(method, n, R)], 2), **diagnostics,
                         **extra})

@@ -160,3 +160,26 @@ def test_what_the_choice_among_candidates_costs_is_tabled_per_row(tmp_path, caps
     chosen, alone = out.split("| chosen / best start / best candidate, % | RT |")[1].split("succeeds alone")
     assert "| dmo n=8 R=1 | 50 / 50 / 100 |" in chosen and "| dmo n=8 R=1 | 25 / 50 |" in alone
     assert "sort" not in chosen + alone  # sort's candidates were not executed alone here
+    assert "by its distance from the demonstration" not in out  # recorded by newer files only
+
+
+def test_candidate_success_by_distance_from_the_demonstration_is_counted_and_tabled(tmp_path, capsys):
+    from dmo_jax.evaluation import candidate_outcomes
+
+    # two scenes x three candidates: 0.4, 0.7, 2.5 cm and 0.9, 1.2, 40 cm from the demonstration
+    errors = np.array([[0.004, 0.007, 0.025], [0.009, 0.012, 0.4]])
+    success = np.array([[1, 0, 0], [0, 1, 1]], bool)
+    out = candidate_outcomes(success, np.ones_like(success), np.zeros(errors.shape), errors)
+    assert out["nearest_candidate_solves"] == 0.5  # the 0.4 cm one solves, the 0.9 cm one does not
+    assert [(b["from_m"], b["to_m"], b["candidates"], b["success_rate"]) for b in out["success_by_error"]] == [
+        (0.0, 0.005, 1, 1.0), (0.005, 0.01, 2, 0.0), (0.01, 0.015, 1, 1.0), (0.015, 0.02, 0, None),
+        (0.02, 0.03, 1, 0.0), (0.03, None, 1, 1.0)]
+    assert out["candidate_error_m"] == errors.tolist()
+    path = _evaluation(tmp_path / "a.json", [("dmo", "reach_target", [1, 1])])
+    payload = json.loads(path.read_text())
+    payload["results"][0].update({k: v for k, v in out.items() if not k.startswith("candidate_")})
+    path.write_text(json.dumps(payload))
+    compare.main([str(path)])
+    table = capsys.readouterr().out.split("by its distance from the demonstration | RT |")[1]
+    assert "| 0–0.5 cm | 100 (1) |" in table and "| 0.5–1 cm | 0 (2) |" in table and "| 1.5–2 cm | – |" in table
+    assert "| ≥ 3 cm | 100 (1) |" in table and "| the candidate nearest the demonstration solves its scene | 50 |" in table

@@ -56,6 +56,12 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path, capsys):
         assert [row[c] for row, c in zip(r["candidate_success"], r["candidate_used"])] == r["episode_success"]
         assert [sum(row) for row in r["candidate_is_start"]] == [2, 2]
         assert r["some_candidate_solves"] >= max(r["success_rate"], r["some_start_solves"])
+        # each candidate's distance from the demonstration: the first-ranked one's is first_error_m
+        errors = np.array(r["candidate_error_m"])
+        assert errors.shape == (2, k) and np.mean(errors[:, 0]) == pytest.approx(r["first_error_m"], abs=1e-4)
+        assert sum(b["candidates"] for b in r["success_by_error"]) == 2 * k
+        nearest = np.array(r["candidate_success"])[[0, 1], errors.argmin(axis=1)]
+        assert r["nearest_candidate_solves"] == nearest.mean()
     assert payload["task"] == TASK and payload["episodes"] == 6
     assert payload["successes"] == sum(r["successes"] for r in payload["results"])
     pngs, mp4s = sorted((tmp_path / "viz").glob(f"{TASK}_*.png")), sorted((tmp_path / "viz").glob("*.mp4"))

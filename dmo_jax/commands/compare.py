@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"--alpha must lie between 0 and 1, got {args.alpha}")
 
     from dmo_jax.comparison import (choice_table, comparison_report, distance_table, load_choices, load_distances,
-                                    load_evaluations, select_rows)
+                                    load_evaluations, precision_table, select_rows)
 
     try:
         rows = load_evaluations(args.files)
@@ -40,5 +40,8 @@ def main(argv: list[str] | None = None) -> None:
         choices = {label: c for label, c in load_choices(args.files).items() if label in rows}
         if choices:
             print("\n" + choice_table(choices))
+            precision = precision_table(choices)
+            if precision:
+                print("\n" + precision)
     except ValueError as err:
         fail(str(err))

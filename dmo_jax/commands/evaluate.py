@@ -181,7 +181,8 @@ def main(argv: list[str] | None = None) -> None:
                         + (f", an optimised motion in {result['optimised_success_rate']:.0%}"
                            if "optimised_success_rate" in result else "")
                         + f", and some candidate solves {result['some_candidate_solves']:.0%} of the scenes "
-                        f"(some start {result['some_start_solves']:.0%})" if "some_candidate_solves" in result else "")
+                        f"(some start {result['some_start_solves']:.0%}, the one nearest the demonstration "
+                        f"{result['nearest_candidate_solves']:.0%})" if "some_candidate_solves" in result else "")
                      + ")"
                      if "predict_seconds" in result else ")"),
                   file=sys.stderr)

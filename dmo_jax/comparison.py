@@ -11,7 +11,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import binomtest
 
 from .config import IMAGE_SIZE_BEFORE, HeadConfig, TrainConfig, override_label, recipe_head, recipe_settings
 
@@ -208,6 +207,8 @@ def select_rows(rows: Rows, labels: list[str]) -> Rows:
 def sign_test(wins: int, losses: int) -> float:
     """Exact two-sided sign test: the probability of a split at least this uneven between
     ``wins`` and ``losses`` discordant scenes if either method were as likely to win each."""
+    from scipy.stats import binomtest  # here: importing scipy.stats takes ~0.6 s, and bin/evaluate needs none of it
+
     return 1.0 if wins + losses == 0 else float(binomtest(wins, wins + losses, 0.5).pvalue)
 
 

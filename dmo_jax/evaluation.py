@@ -128,7 +128,7 @@ def candidate_errors(candidates: np.ndarray, demonstrations: np.ndarray, intrins
 
 
 def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstrations: np.ndarray, intrinsics,
-                       image_size: int, camera_pose: tuple | None = None) -> dict:
+                       image_size: int, camera_pose: tuple | None = None, *, errors: np.ndarray | None = None) -> dict:
     """Where the ranked ``candidates [E, K, 101, 11]`` lie against the scenes' demonstrations,
     as mean 3-D position errors in metres (``losses.position_error``) averaged over episodes:
     ``first_error_m`` of the first-ranked candidate, ``start_error_m`` of the EBM's top bank
@@ -140,11 +140,13 @@ def motion_diagnostics(starts: np.ndarray, candidates: np.ndarray, demonstration
     the optimised motions (for the DMO at R = 1: the EBM's top n before and after one refinement).
     Given the camera's world ``camera_pose`` ``(position [3], rotation [3, 3])``,
     ``first_lowest_offset_m``: how much higher the first-ranked motion's lowest point lies than the
-    demonstration's (signed, mean over episodes; what decides a press or a placement)."""
+    demonstration's (signed, mean over episodes; what decides a press or a placement). ``errors
+    [E, K]``: the candidates' :func:`candidate_errors`, where the caller has them already."""
     import jax.numpy as jnp
 
     start_errors = candidate_errors(starts, demonstrations, intrinsics, image_size)
-    errors = candidate_errors(candidates, demonstrations, intrinsics, image_size)
+    if errors is None:
+        errors = candidate_errors(candidates, demonstrations, intrinsics, image_size)
     is_start = _among(candidates, starts)  # [E, K]
     depth_error = np.abs(candidates[:, 0, :, Z] - demonstrations[..., Z])
     out = {"first_error_m": round(float(np.mean(errors[:, 0])), 4),
@@ -264,10 +266,11 @@ def evaluate_methods(task_name: str, methods: Sequence[str], *, preset: Preset, 
 
             label = f"{method}_n{n}" + ("" if R is None else f"_R{R}") if len(predictions) > 1 else ""
             save_episode_visuals(viz_dir, task_name, test, cands, energies, result, preset, label=label)
+        errors = candidate_errors(cands, test.motions[:episodes], intrinsics, preset.image_size)
         diagnostics = motion_diagnostics(starts[:, :n], cands, test.motions[:episodes], intrinsics,
-                                         preset.image_size, (test.meta["camera_position"], test.meta["camera_rotation"]))
+                                         preset.image_size, (test.meta["camera_position"], test.meta["camera_rotation"]),
+                                         errors=errors)
         if each_candidate:
-            errors = candidate_errors(cands, test.motions[:episodes], intrinsics, preset.image_size)
             diagnostics.update(candidate_outcomes(evaluation.run_each_candidate(task_name, test, cands, backend),
                                                   _among(cands, starts[:, :n]), energies, errors))
         results.append({"method": method, "n": n, "R": R, **result,

@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 from envs.motion import Z
+from envs.progress import Progress
 
 from .config import Preset
 from .data import network_image
@@ -58,11 +59,14 @@ def predict_episodes(models, preset: Preset, methods: Sequence[str], images: np.
                 continue
             t0 = time.perf_counter()
             cands, energies = [], []
+            progress = Progress(f"predict {method} n={n}" + ("" if slot[2] is None else f" R={R}"), e)
             for (i, x), ranking in zip(_padded_batches(images, batch), rankings):
                 key = jax.random.fold_in(jax.random.key(seed), i)
                 out = refine(models, x, ranking.first(n), key, preset=preset, method=method, R=R, settings=optimizer)
                 cands.append(np.asarray(out.candidates))
                 energies.append(np.asarray(out.energies))
+                progress.update(min(i + batch, e))
+            progress.close()
             predictions[slot] = (np.concatenate(cands)[:e], np.concatenate(energies)[:e])
             seconds[slot] = time.perf_counter() - t0
     return starts, predictions, seconds
@@ -76,9 +80,13 @@ def _rankings(models, preset: Preset, images: np.ndarray, bank, n: int, batch: i
     refine call recomputes it): kept for every image it would take 64 MB per image at the paper
     preset."""
     bank = cache_bank(models, bank, preset=preset)
-    rankings = [top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
-                for _, x in _padded_batches(images, batch)]
-    return jax.block_until_ready(rankings)
+    rankings, progress = [], Progress("rank the bank", len(images))
+    for i, x in _padded_batches(images, batch):
+        ranking = top_candidates(models, x, bank, preset=preset, n=n, coarse=coarse)._replace(feature=None)
+        rankings.append(jax.block_until_ready(ranking))
+        progress.update(min(i + batch, len(images)))
+    progress.close()
+    return rankings
 
 
 def coarse_recall(models, preset: Preset, images: np.ndarray, bank, starts: np.ndarray,

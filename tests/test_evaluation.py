@@ -14,13 +14,14 @@ TINY = get_preset("tiny")
 TASK = "reach_target"  # the task of the shared `trained` fixture (conftest.py)
 
 
-def _evaluate(capsys, *args) -> str:
-    """``bin/evaluate args`` in this process, on the compiled programs of the tests before it: its stdout."""
+def _evaluate(capsys, *args):
+    """``bin/evaluate args`` in this process, on the compiled programs of the tests before it: what
+    it printed (``.out``, ``.err``)."""
     from dmo_jax.commands import evaluate
 
     capsys.readouterr()
     evaluate.main(list(args))
-    return capsys.readouterr().out
+    return capsys.readouterr()
 
 
 def _check_summary(summary):
@@ -32,10 +33,14 @@ def test_evaluate_a_learned_method_end_to_end(trained, tmp_path, capsys):
     data, work, summary = trained
     _check_summary(summary)
     out = tmp_path / "r.json"
-    stdout = _evaluate(capsys, "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
-                       "--workdir", str(work), "--episodes", "2", "--n", "2", "--sweep", "R=0,2", "--backend",
-                       "mujoco", "--json", str(out), "--save-viz", str(tmp_path / "viz"), "--each-candidate")
-    table = stdout.splitlines()
+    printed = _evaluate(capsys, "--task", TASK, "--method", "dmo,sort", "--preset", "tiny", "--data", str(data),
+                        "--workdir", str(work), "--episodes", "2", "--n", "2", "--sweep", "R=0,2", "--backend",
+                        "mujoco", "--json", str(out), "--save-viz", str(tmp_path / "viz"), "--each-candidate")
+    table = printed.out.splitlines()
+    # the long parts report their progress: the bank's ranking and each prediction
+    progress = [line.split(" (")[0] for line in printed.err.splitlines()]
+    assert {"rank the bank: 2/2", "predict dmo n=2 R=0: 2/2", "predict sort n=2: 2/2",
+            "predict dmo n=2 R=2: 2/2"} <= set(progress)
     assert table[0].startswith("| method | CB | PC | PB | PK | PR | PU | RT | SW | TP | avg |")
     # sort ignores R: one row, not one per R
     assert [l.split("|")[1].strip() for l in table[2:]] == ["dmo n=2 R=0 {image_size=32}", "sort n=2 {image_size=32}",
@@ -117,7 +122,7 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
     methods = ["sort", "langevin", "gd", "vaebm-l", "vaebm-s", "dfo"]
     out = tmp_path / "all.json"
     table = _evaluate(capsys, "--task", TASK, "--method", ",".join(methods), "--preset", "tiny", "--data", str(data),
-                      "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco", "--json", str(out))
+                      "--workdir", str(work), "--episodes", "2", "--n", "2", "--backend", "mujoco", "--json", str(out)).out
     assert [l.split("|")[1].strip() for l in table.splitlines()[2:]] == [f"{m} n=2 {{image_size=32}}" for m in methods]
     payload = json.loads(out.read_text())
     assert payload["method"] == methods and [r["method"] for r in payload["results"]] == methods
@@ -146,14 +151,14 @@ def test_every_baseline_evaluates_in_one_call_sharing_the_bank(trained, tmp_path
 def test_show_preset_prints_the_resolved_preset_and_where_each_checkpoint_differs(trained, capsys):
     _, work, _ = trained
     out = _evaluate(capsys, "--task", TASK, "--method", "dmo", "--preset", "tiny", "--workdir", str(work),
-                    "--show-preset", "--set", "train.lr=0.002")
+                    "--show-preset", "--set", "train.lr=0.002").out
     shown = json.loads(out[:out.index("\n}\n") + 2])
     assert shown["train"]["lr"] == 0.002 and shown["image_size"] == TINY.image_size
     assert f"ebm {workflow.RunPaths.of(work, TASK, TINY).root}" in out  # the EBM and the DMO, not the VAE
     assert out.count("trained with this preset except (checkpoint -> now) train.lr: 0.0001 -> 0.002") == 2
     assert "vae " not in out
     out = _evaluate(capsys, "--task", TASK, "--method", "langevin", "--preset", "tiny", "--workdir", str(work),
-                    "--show-preset")
+                    "--show-preset").out
     assert "trained with this preset\n" in out + "\n"
 
 
@@ -184,7 +189,7 @@ def test_the_bank_recipe_trains_and_evaluates_end_to_end(trained_bank, tmp_path,
     out = tmp_path / "bank.json"
     stdout = _evaluate(capsys, "--task", TASK, "--method", "sort,dmo", "--preset", "tiny", "--recipe", "bank",
                        "--data", str(data), "--workdir", str(work), "--episodes", "4", "--n", "2", "--backend",
-                       "mujoco", "--json", str(out))
+                       "mujoco", "--json", str(out)).out
     assert [l.split("|")[1].strip() for l in stdout.splitlines()[2:]] == [
         "sort n=2 [bank] {image_size=32}", "dmo n=2 R=1 (selection head 300, 8 phases) [bank] {image_size=32}"]
     payload = json.loads(out.read_text())

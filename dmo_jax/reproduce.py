@@ -9,7 +9,7 @@ finished one does no work. The tables are then rendered into BENCHMARKS.md betwe
 
 A table file is a ``bin/evaluate --json`` file (``bin/compare results/table1.json`` compares its
 rows scene by scene) plus ``provenance``: preset, scenes, date, machine, package versions and the
-command. Each result carries the ``settings`` its row was made with.
+commands that made it. Each result carries the ``settings`` its row was made with.
 """
 from __future__ import annotations
 
@@ -97,8 +97,9 @@ def table_runs(table: str, recipe: str, variants: Sequence[str] = VARIANTS) -> l
     raise ValueError(f"unknown table {table!r}; expected one of {', '.join(TABLES)}")
 
 
-def provenance(preset: Preset, episodes: int, command: Sequence[str]) -> dict:
-    """Where and how a table file's results were made."""
+def provenance(preset: Preset, episodes: int, command: Sequence[str], earlier: Sequence[str] = ()) -> dict:
+    """Where and how a table file's results were made: the machine and packages of the run that
+    last added results, and every command that added some (``earlier`` ones first)."""
     import jax
 
     versions = {}
@@ -113,7 +114,13 @@ def provenance(preset: Preset, episodes: int, command: Sequence[str]) -> dict:
             "machine": {"system": platform.platform(terse=True), "processor": platform.machine(),
                         "cores": os.cpu_count(), "device": f"{device.platform}: {device.device_kind}"},
             "python": platform.python_version(), "versions": versions,
-            "command": " ".join(["bin/reproduce", *command])}
+            "commands": list(dict.fromkeys([*earlier, " ".join(["bin/reproduce", *command])]))}
+
+
+def commands(made: dict) -> list[str]:
+    """The commands that made a table file, from its ``provenance`` (files that kept only the last
+    one name it ``command``)."""
+    return made.get("commands") or ([made["command"]] if "command" in made else [])
 
 
 def _record(result: dict, run: Run, preset: Preset) -> dict:
@@ -212,8 +219,8 @@ def reproduce(tables: Sequence[str], tasks: Sequence[str], preset: Preset, episo
                 t0 = time.perf_counter()
                 records = [_record(r, run, preset) for r in evaluate_run(run, task, preset, episodes, data, workdir,
                                                                          backend, seed, log)]
-                # the provenance is that of the run that last added results
-                payload = {"provenance": provenance(preset, episodes, command),
+                earlier = commands(payload["provenance"]) if payload else ()
+                payload = {"provenance": provenance(preset, episodes, command, earlier),
                            "results": (payload or {}).get("results", []) + records}
                 write_json(path, payload)  # after every run and task: a kill loses at most one
                 log(f"[table {table}] {task} {run.name}: " + ", ".join(
@@ -234,10 +241,11 @@ def render(path: Path, table: str) -> str:
             for label, per_task in load_evaluations([path]).items()]
     rows += [(f"paper {label}", {t: v / 100 for t, v in zip(TASK_ORDER, values)})
              for label, values in PAPER[table].items()]
-    machine = made["machine"]
-    return (f"`{made['command']}`: preset `{made['preset']}`, the first {made['episodes']} test scenes of each "
-            f"task, {made['date']}, {machine['cores']} cores, device {'/'.join(dict.fromkeys(machine['device'].split(': ')))}, jax "
-            f"{made['versions'].get('jax', '?')}. Rows \"paper\" are the paper's.\n\n" + success_table(rows))
+    machine, made_by = made["machine"], ", then ".join(f"`{c}`" for c in commands(made))
+    device = "/".join(dict.fromkeys(machine["device"].split(": ")))
+    return (f"{made_by}: preset `{made['preset']}`, the first {made['episodes']} test scenes of each task, "
+            f"{made['date']}, {machine['cores']} cores, device {device}, jax {made['versions'].get('jax', '?')}. "
+            f"Rows \"paper\" are the paper's.\n\n" + success_table(rows))
 
 
 def update_report(report: Path, sections: dict[str, str]) -> None:

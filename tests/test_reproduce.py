@@ -53,11 +53,23 @@ def test_rows_made_with_settings_the_preset_no_longer_has_are_replaced_not_mixed
     (row,) = payload["results"]
     assert row["successes"] == 2 and row["settings"]["depth_cue"] is True and row["settings"]["image_size"] == 96
     # the file says how its new results were made
-    assert payload["provenance"]["command"] == "bin/reproduce --tables 6" and "versions" in payload["provenance"]
+    assert payload["provenance"]["commands"] == ["bin/reproduce --tables 6"] and "versions" in payload["provenance"]
     # made with today's settings, it is done: nothing is evaluated again
+    before = path.read_bytes()
     monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: pytest.fail("evaluated a done row"))
     reproduce.reproduce(["6"], ["reach_target"], cpu, 2, results_dir=tmp_path, data=tmp_path, workdir=tmp_path,
-                        log=lambda m: None)
+                        command=["--tables", "6", "--tasks", "reach_target"], log=lambda m: None)
+    assert path.read_bytes() == before
+    # a command that adds results is named after those that made the rest
+    monkeypatch.setattr(reproduce, "evaluate_run", lambda *a, **k: [{**made(1), "task": "stack_wine"}])
+    reproduce.reproduce(["6"], ["reach_target", "stack_wine"], cpu, 2, results_dir=tmp_path, data=tmp_path,
+                        workdir=tmp_path, command=["--tables", "6", "--tasks", "stack_wine"], log=lambda m: None)
+    payload = json.loads(path.read_text())
+    assert [r["task"] for r in payload["results"]] == ["reach_target", "stack_wine"]
+    assert payload["provenance"]["commands"] == ["bin/reproduce --tables 6",
+                                                 "bin/reproduce --tables 6 --tasks stack_wine"]
+    assert reproduce.render(path, "6").startswith(
+        "`bin/reproduce --tables 6`, then `bin/reproduce --tables 6 --tasks stack_wine`: preset `cpu`")
 
 
 def _run(capsys, *args) -> tuple[int, str]:
@@ -89,7 +101,7 @@ def test_reproduce_writes_results_renders_tables_and_a_second_run_does_no_work(t
     payload = json.loads(path.read_text())
     made = payload["provenance"]
     assert (made["preset"], made["episodes"]) == ("tiny", 4) and "jax" in made["versions"]
-    assert made["command"].startswith("bin/reproduce --tables 5")
+    assert len(made["commands"]) == 1 and made["commands"][0].startswith("bin/reproduce --tables 5")
     records = payload["results"]
     assert {r["task"] for r in records} == {TASK}
     assert all(r["episodes"] == 4 and r["successes"] == sum(r["episode_success"]) for r in records)

@@ -32,19 +32,6 @@ collect_garbage_rarely()  # again, now that jax is imported
 
 from helpers import built_once  # noqa: E402
 
-#: The fixtures that train networks, once for the whole suite.
-TRAINED_FIXTURES = {"trained", "trained_bank"}
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(items):
-    """Put the tests that use the trained networks in one pytest-xdist group: with ``--dist
-    loadgroup`` (``bin/test``) one worker builds the networks and runs those tests while the others
-    run the rest, instead of waiting for the networks to be built."""
-    for item in items:
-        if TRAINED_FIXTURES & set(getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.xdist_group("trained"))
-
 
 @pytest.fixture(scope="session")
 def trained(tmp_path_factory, worker_id):

@@ -155,9 +155,6 @@ class TrainConfig:
     # Not in the paper (0 = off: the DMO's candidates ranked by energy): > 0 fits the selection head
     # (dmo_jax.selection) on the DMO's candidates for this many training scenes, each executed there.
     selection_scenes: int = _may_be_zero(0)
-    # 0: the selection head is a linear score. > 0: a one-hidden-layer MLP with this many units,
-    # under measurement (BENCHMARKS.md, "An MLP selection head").
-    selection_hidden: int = _may_be_zero(0)
 
     def __post_init__(self):
         for f in dataclasses.fields(self):

@@ -71,7 +71,7 @@ class Models(NamedTuple):
     ebm: Any
     dmo: Any = None
     vae: Any = None
-    selection: Any = None  # the DMO's selection head (dmo_jax.selection.selection_scores); None: by energy
+    selection: Any = None  # the DMO's selection head, weights [PHASES * w + 1] (dmo_jax.selection); None: by energy
 
 
 class Ranking(NamedTuple):

@@ -12,12 +12,9 @@ averaged over each of ``PHASES`` consecutive parts of the motion
 a succeeding candidate first: a listwise loss, ``-log`` of the softmax mass of the scene's succeeding
 candidates, from weights that rank by energy alone and with an L2 pull back to them. The DMO's
 prediction then ranks its candidates by that score (the networks are unchanged; ``sort`` and the
-other methods still rank by energy). With ``TrainConfig.selection_hidden`` > 0 the score is a
-one-hidden-layer MLP of the same inputs plus the energy's own term, fitted to the same loss
-(:func:`fit_mlp`). Stored per EBM and DMO as one JSON file beside them::
+other methods still rank by energy). Stored per EBM and DMO as one JSON file beside them::
 
-    {"weights": [PHASES * w + 1 floats] or {"w1", "b1", "w2", "energy"}, "hidden", "phases",
-     "fingerprint": the training motions', "scenes", ...}
+    {"weights": [PHASES * w + 1 floats], "phases", "fingerprint": the training motions', "scenes", ...}
 """
 from __future__ import annotations
 
@@ -28,7 +25,6 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from envs.progress import Progress
 
@@ -44,33 +40,12 @@ L2 = 0.03
 #: fitted to the same executed candidates of take_plate and put_umbrella, chose no better than 8.
 PHASES = 8
 _FIT_STEPS, _FIT_RATE = 2000, 0.05
-#: The MLP head's fit (:func:`fit_mlp`): AdamW steps, rate and weight decay, on standardised inputs.
-_MLP_STEPS, _MLP_RATE, _MLP_DECAY = 1500, 3e-3, 1.0
-#: Both fits start from ``softmax(-3 standardised energies)``: the energy's choice.
-_ENERGY_START = -3.0
 
 
-def selection_scores(head, phases: jax.Array, energies: jax.Array) -> jax.Array:
-    """Candidates' phase tokens ``phases [..., K, P, w]`` and ``energies [..., K]`` -> scores
-    ``[..., K]``, higher is the better candidate. ``head``: the linear head's weights ``[P * w + 1]``
-    or the MLP head's ``{"w1" [P * w + 1, H], "b1" [H], "w2" [H], "energy" []}``."""
-    x = phases.reshape(phases.shape[:-2] + (-1,))
-    if isinstance(head, dict):
-        x = jnp.concatenate([x, energies[..., None]], axis=-1)
-        return jax.nn.relu(x @ head["w1"] + head["b1"]) @ head["w2"] + energies * head["energy"]
-    return x @ head[:-1] + energies * head[-1]
-
-
-def _standardised(phases, energies, success):
-    """``(x [M', K, D + 1], success [M', K], scale [D + 1])``: the scenes that carry a choice (some
-    but not every candidate succeeds), with the features and energy scaled by their spread within
-    a scene, the only one a choice among its candidates sees."""
-    features = np.reshape(phases, np.shape(phases)[:2] + (-1,))
-    x = np.concatenate([features, energies[..., None]], axis=-1).astype(np.float64)
-    s = np.asarray(success, np.float64)
-    scale = (x - x.mean(axis=1, keepdims=True)).reshape(-1, x.shape[-1]).std(axis=0) + 1e-6
-    useful = (s.max(axis=1) > 0) & (s.min(axis=1) < 1)
-    return x[useful] / scale, s[useful], scale
+def selection_scores(weights: jax.Array, phases: jax.Array, energies: jax.Array) -> jax.Array:
+    """``weights [P * w + 1]``, candidates' phase tokens ``phases [..., K, P, w]`` and ``energies
+    [..., K]`` -> scores ``[..., K]``, higher is the better candidate."""
+    return phases.reshape(phases.shape[:-2] + (-1,)) @ weights[:-1] + energies * weights[-1]
 
 
 def fit_weights(phases: np.ndarray, energies: np.ndarray, success: np.ndarray, l2: float = L2) -> np.ndarray:
@@ -78,10 +53,15 @@ def fit_weights(phases: np.ndarray, energies: np.ndarray, success: np.ndarray, l
     ``phases [M, K, P, w]``, ``energies [M, K]`` and ``success [M, K]`` (bool) of M scenes' K
     candidates. Scenes where every candidate or none succeeds carry no choice and are left out;
     with none left the weights rank by energy alone."""
-    x, s, scale = _standardised(phases, energies, success)
+    features = np.reshape(phases, np.shape(phases)[:2] + (-1,))
+    x = np.concatenate([features, energies[..., None]], axis=-1).astype(np.float64)
+    s = np.asarray(success, np.float64)
+    # scaled by the spread within a scene, the only one a choice among its candidates sees
+    scale = (x - x.mean(axis=1, keepdims=True)).reshape(-1, x.shape[-1]).std(axis=0) + 1e-6
     w0 = np.zeros(x.shape[-1])
-    w0[-1] = _ENERGY_START
-    w = w0.copy()
+    w0[-1] = -3.0  # softmax(-3 standardised energies): the energy's choice
+    useful = (s.max(axis=1) > 0) & (s.min(axis=1) < 1)
+    x, s, w = x[useful] / scale, s[useful], w0.copy()
     for _ in range(_FIT_STEPS if len(x) else 0):
         z = x @ w
         p = np.exp(z - z.max(axis=1, keepdims=True))
@@ -93,41 +73,6 @@ def fit_weights(phases: np.ndarray, energies: np.ndarray, success: np.ndarray, l
     if not np.all(np.isfinite(weights)):
         raise FloatingPointError("the selection head's weights are not finite")
     return weights
-
-
-def fit_mlp(phases: np.ndarray, energies: np.ndarray, success: np.ndarray, hidden: int, seed: int = 0) -> dict:
-    """The MLP head (:func:`selection_scores`) with ``hidden`` units, fitted like
-    :func:`fit_weights` to put a succeeding candidate first, by AdamW with weight decay instead of
-    the pull: its output layer starts at zero, so it starts from, and without scenes that carry a
-    choice stays at, the energy's ranking. Arrays ``float32``."""
-    x, s, scale = _standardised(phases, energies, success)
-    d = x.shape[-1]
-    params = {"w1": jax.random.normal(jax.random.key(seed), (d, hidden)) / np.sqrt(d), "b1": jnp.zeros(hidden), "w2": jnp.zeros(hidden)}
-    x, s = jnp.asarray(x, jnp.float32), jnp.asarray(s, jnp.float32)
-
-    def loss(p):
-        z = jax.nn.relu(x @ p["w1"] + p["b1"]) @ p["w2"] + _ENERGY_START * x[..., -1]
-        # -log of the softmax mass of the succeeding candidates
-        return (jax.nn.logsumexp(z, axis=1) - jax.nn.logsumexp(jnp.where(s > 0, z, -jnp.inf), axis=1)).mean()
-
-    opt = optax.adamw(_MLP_RATE, weight_decay=_MLP_DECAY)
-
-    @jax.jit
-    def step(p, state):
-        grads = jax.grad(loss)(p)
-        updates, state = opt.update(grads, state, p)
-        return optax.apply_updates(p, updates), state
-
-    state = opt.init(params)
-    for _ in range(_MLP_STEPS if len(x) else 0):
-        params, state = step(params, state)
-    scale = jnp.asarray(scale, jnp.float32)
-    head = {"w1": params["w1"] / scale[:, None], "b1": params["b1"], "w2": params["w2"],
-            "energy": _ENERGY_START / scale[-1]}
-    head = {k: np.asarray(v, np.float32) for k, v in head.items()}
-    if not all(np.all(np.isfinite(v)) for v in head.values()):
-        raise FloatingPointError("the selection head's weights are not finite")
-    return head
 
 
 def training_candidates(models, preset: Preset, images: np.ndarray, bank: np.ndarray, own: np.ndarray,
@@ -181,8 +126,7 @@ def train_selection(task_name: str, models, preset: Preset, train, path: Path, l
     scenes = min(preset.train.selection_scenes, len(bank))
     if scenes < 1:
         raise ValueError(f"selection_scenes must be positive to fit a selection head, got {scenes}")
-    hidden = preset.train.selection_hidden
-    stored = _stored(path, bank, hidden)
+    stored = _stored(path, bank)
     if stored is not None:
         return {k: v for k, v in stored.items() if k not in ("weights", "fingerprint")}
     t0 = time.perf_counter()
@@ -190,41 +134,35 @@ def train_selection(task_name: str, models, preset: Preset, train, path: Path, l
     images = network_image(train.rgb[:scenes], train.depth[:scenes])
     cands, energies, phases = training_candidates(models, preset, images, bank, np.arange(scenes))
     success = run_each_candidate(task_name, train, cands, progress="execute the candidates")
-    weights = fit_mlp(phases, energies, success, hidden) if hidden else fit_weights(phases, energies, success)
+    weights = fit_weights(phases, energies, success)
     chosen = np.argmax(selection_scores(weights, phases, energies), axis=1)
-    summary = {"scenes": scenes, "phases": PHASES, "hidden": hidden, **({} if hidden else {"l2": L2}),
+    summary = {"scenes": scenes, "phases": PHASES, "l2": L2,
                "candidate_succeeds": round(float(success.mean()), 4),
                "some_candidate_succeeds": round(float(success.any(axis=1).mean()), 4),
                "lowest_energy_succeeds": round(float(success[:, 0].mean()), 4),
                "selected_succeeds": round(float(success[np.arange(scenes), chosen].mean()), 4),
                "seconds": round(time.perf_counter() - t0, 1)}
     path.parent.mkdir(parents=True, exist_ok=True)
-    stored = {k: v.tolist() for k, v in weights.items()} if hidden else weights.tolist()
-    atomic_write_text(path, json.dumps({**summary, "fingerprint": motions_fingerprint(bank), "weights": stored}))
+    atomic_write_text(path, json.dumps({**summary, "fingerprint": motions_fingerprint(bank),
+                                        "weights": weights.tolist()}))
     return summary
 
 
-def _stored(path: Path, bank: np.ndarray, hidden: int) -> dict | None:
+def _stored(path: Path, bank: np.ndarray) -> dict | None:
     try:
         stored = json.loads(path.read_text())
     except FileNotFoundError:
         return None
-    # a head of other data, of an older feature layout (no "phases": the mean over the motion) or
-    # of another form (no "hidden": linear) is not this one
-    same = (stored.get("fingerprint") == motions_fingerprint(bank) and stored.get("phases") == PHASES
-            and stored.get("hidden", 0) == hidden)
+    # a head of other data, or of an older feature layout (no "phases": the mean over the motion), is not this one
+    same = stored.get("fingerprint") == motions_fingerprint(bank) and stored.get("phases") == PHASES
     return stored if same else None
 
 
-def load_weights(path: Path, bank: np.ndarray, hidden: int = 0):
-    """The head :func:`train_selection` stored at ``path`` for these training motions, with
-    ``hidden`` units (0: linear), as :func:`selection_scores` takes it; ``ValueError`` naming the
-    file when there is none."""
-    stored = _stored(path, bank, hidden)
+def load_weights(path: Path, bank: np.ndarray) -> np.ndarray:
+    """The weights :func:`train_selection` stored at ``path`` for these training motions;
+    ``ValueError`` naming the file when there are none."""
+    stored = _stored(path, bank)
     if stored is None:
-        raise ValueError(f"no selection head for these networks, data, {PHASES} phases and {hidden} hidden units in "
-                         f"{path}: train it first (bin/train_all)")
-    weights = stored["weights"]
-    if hidden:
-        return {k: np.asarray(v, np.float32) for k, v in weights.items()}
-    return np.asarray(weights, np.float32)
+        raise ValueError(f"no selection head for these networks, data and {PHASES} phases in {path}: "
+                         "train it first (bin/train_all)")
+    return np.asarray(stored["weights"], np.float32)

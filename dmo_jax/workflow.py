@@ -62,13 +62,7 @@ class RunPaths:
         """The selection head of the EBM and DMO above (``dmo_jax.selection``)."""
         return (self.root / preset.variant / "selection" /
                 f"{self.ebm(preset, negatives).name}+{self.dmo(preset, train_steps).name}"
-                f"-{preset.train.selection_scenes}{_mlp_suffix(preset)}.json")
-
-
-def _mlp_suffix(preset: Preset) -> str:
-    """``-mlp<hidden>`` for an MLP selection head, else nothing."""
-    hidden = preset.train.selection_hidden
-    return f"-mlp{hidden}" if hidden else ""
+                f"-{preset.train.selection_scenes}.json")
 
 
 def _cue_suffix(preset: Preset) -> str:
@@ -262,6 +256,5 @@ def load_models(workdir, task_name: str, preset: Preset, method, negatives: str 
         if bank is None:
             raise ValueError("load_models: a selection head is loaded only with the training motions (bank)")
         r = preset.train.dmo_train_steps if dmo_train_steps is None else dmo_train_steps
-        selection = load_weights(RunPaths.of(workdir, task_name, preset).selection(preset, negatives, r), bank,
-                                 preset.train.selection_hidden)
+        selection = load_weights(RunPaths.of(workdir, task_name, preset).selection(preset, negatives, r), bank)
     return Models(nets["ebm"], nets.get("dmo"), nets.get("vae"), selection)

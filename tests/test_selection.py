@@ -31,23 +31,6 @@ def test_the_fit_learns_what_tells_success_apart_and_else_keeps_the_energys_choi
     np.testing.assert_array_equal(np.argsort(-scores, axis=1), np.argsort(energies, axis=1))
 
 
-def test_the_mlp_head_learns_what_a_linear_score_cannot_and_else_keeps_the_energys_choice():
-    rng = np.random.default_rng(0)
-    m, k, p, w = 120, 6, 2, 3
-    phases, energies = rng.normal(size=(m, k, p, w)), rng.normal(size=(m, k))
-    success = np.abs(phases[..., 1, 0]) < 0.4  # a band: no linear score ranks it first
-    rows = np.arange(m)
-
-    def chosen_succeeds(head):
-        return success[rows, np.argmax(np.asarray(selection.selection_scores(head, phases, energies)), axis=1)].mean()
-
-    mlp = selection.fit_mlp(phases, energies, success, hidden=16)
-    assert chosen_succeeds(mlp) > chosen_succeeds(selection.fit_weights(phases, energies, success)) + 0.2
-    mlp = selection.fit_mlp(phases, energies, np.ones((m, k), bool), hidden=16)
-    scores = np.asarray(selection.selection_scores(mlp, phases, energies))
-    np.testing.assert_array_equal(np.argsort(-scores, axis=1), np.argsort(energies, axis=1))
-
-
 def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, tmp_path):
     shared_data, shared_work, summary = trained_bank  # the bank recipe fits a head (conftest.py)
     data, work = shutil.copytree(shared_data, tmp_path / "data"), shutil.copytree(shared_work, tmp_path / "runs")
@@ -64,17 +47,12 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     test = load_split(data, TASK, "test")
     image = network_image(test.rgb[:1], test.depth[:1])[0]
     key = jax.random.key(0)
+    dmo = inference.predict(models, image, bank, key, preset=preset, method="dmo", n=2, R=1)
     ebm = EBMNet(preset)
     feature = ebm.encode(models.ebm, image)
-
-    def dmo_ranked_by_its_head(models):
-        dmo = inference.predict(models, image, bank, key, preset=preset, method="dmo", n=2, R=1)
-        _, phases = ebm.pooled_and_phases(models.ebm, feature, dmo.candidates, selection.PHASES)
-        scores = np.asarray(selection.selection_scores(models.selection, phases, dmo.energies))
-        assert np.all(np.diff(scores) <= 1e-5)  # best first by the head's score
-        return dmo
-
-    dmo = dmo_ranked_by_its_head(models)
+    _, phases = ebm.pooled_and_phases(models.ebm, feature, dmo.candidates, selection.PHASES)
+    scores = np.asarray(selection.selection_scores(models.selection, phases, dmo.energies))
+    assert np.all(np.diff(scores) <= 1e-5)  # best first by the head's score
     # the same candidates and energies as ranked by energy
     by_energy = inference.predict(models._replace(selection=None), image, bank, key, preset=preset, method="dmo",
                                   n=2, R=1)
@@ -82,9 +60,9 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     sort = inference.predict(models, image, bank, key, preset=preset, method="sort", n=2)
     assert np.all(np.diff(np.asarray(sort.energies)) >= 0)  # sort still by energy
 
-    for other in (preset.with_overrides(["selection_scenes=2"]), preset.with_overrides(["selection_hidden=4"])):
-        with pytest.raises(ValueError, match="no selection head.*train it first"):
-            workflow.load_models(work, TASK, other, "dmo", bank=bank)
+    other = preset.with_overrides(["selection_scenes=2"])
+    with pytest.raises(ValueError, match="no selection head.*train it first"):
+        workflow.load_models(work, TASK, other, "dmo", bank=bank)
     assert workflow.load_models(work, TASK, other, "sort", bank=bank).selection is None
     path = workflow.RunPaths.of(work, TASK, preset).selection(preset, "in-data+vae", preset.train.dmo_train_steps)
     stored = json.loads(path.read_text())
@@ -93,10 +71,3 @@ def test_the_head_trains_once_and_ranks_the_dmos_candidates_only(trained_bank, t
     path.write_text(json.dumps({**stored, "phases": 1}))
     with pytest.raises(ValueError, match="no selection head"):
         workflow.load_models(work, TASK, preset, "dmo", bank=bank)
-
-    # an MLP head is fitted beside it on the same networks, stored apart, and ranks the DMO's candidates
-    mlp = preset.with_overrides(["selection_hidden=4"])
-    assert workflow.train_task(TASK, mlp, data, work, log=lambda m: None)["selection"]["hidden"] == 4
-    models = workflow.load_models(work, TASK, mlp, "dmo", bank=bank)
-    assert models.selection["w1"].shape == (width + 1, 4)
-    dmo_ranked_by_its_head(models)

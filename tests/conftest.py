@@ -1,17 +1,25 @@
 """Set the process up first (``envs.platform.setup``: the headless GL back-end and XLA's CPU
 flags), before any test module imports mujoco or jax; and the networks several test modules share
 (``trained``)."""
-import atexit
 import os
 import shutil
-import tempfile
+from pathlib import Path
 
-# The test processes and the commands they start share one compilation cache, fresh for every
-# run of the suite: a program is compiled once for all of them, and nothing is left in the
-# user's cache. pytest-xdist's workers inherit the directory from the main process.
+#: The tests' compilation cache is emptied at the start of a run once it holds more than this.
+TEST_CACHE_LIMIT_BYTES = 512 * 2**20
+
+# The test processes and the commands they start share one compilation cache, kept between runs
+# of the suite in a directory of its own: the tests compile with other XLA flags than the
+# commands, so their programs could never serve a command. A program is compiled once for all of
+# a run's processes, and a later run of unchanged code reads it back: 520 instead of 740-759 s
+# (BENCHMARKS.md, "Test suite"). Edits leave programs no later run reads (about 40 MB a run), so
+# the directory starts afresh past TEST_CACHE_LIMIT_BYTES. pytest-xdist's workers inherit it from
+# the main process; DMO_JAX_COMPILATION_CACHE chooses another directory (``off``: none).
 if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
-    os.environ["DMO_JAX_COMPILATION_CACHE"] = tempfile.mkdtemp(prefix="dmo-jax-tests-xla-")
-    atexit.register(shutil.rmtree, os.environ["DMO_JAX_COMPILATION_CACHE"], ignore_errors=True)
+    cache = Path.home() / ".cache" / "dmo_jax" / "xla-tests"
+    if cache.is_dir() and sum(f.stat().st_size for f in cache.iterdir() if f.is_file()) > TEST_CACHE_LIMIT_BYTES:
+        shutil.rmtree(cache, ignore_errors=True)
+    os.environ["DMO_JAX_COMPILATION_CACHE"] = str(cache)
 
 import pytest  # noqa: E402
 

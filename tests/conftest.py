@@ -11,10 +11,10 @@ TEST_CACHE_LIMIT_BYTES = 512 * 2**20
 # The test processes and the commands they start share one compilation cache, kept between runs
 # of the suite in a directory of its own: the tests compile with other XLA flags than the
 # commands, so their programs could never serve a command. A program is compiled once for all of
-# a run's processes, and a later run of unchanged code reads it back: 520 instead of 740-759 s
-# (BENCHMARKS.md, "Test suite"). Edits leave programs no later run reads (about 40 MB a run), so
-# the directory starts afresh past TEST_CACHE_LIMIT_BYTES. pytest-xdist's workers inherit it from
-# the main process; DMO_JAX_COMPILATION_CACHE chooses another directory (``off``: none).
+# a run's processes, and a later run of unchanged code reads it back: 433 instead of 657 s
+# (BENCHMARKS.md, "Test suite"). Edits leave programs no later run reads (a run's take about
+# 41 MB), so the directory starts afresh past TEST_CACHE_LIMIT_BYTES. pytest-xdist's workers
+# inherit it from the main process; DMO_JAX_COMPILATION_CACHE chooses another one (``off``: none).
 if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
     cache = Path.home() / ".cache" / "dmo_jax" / "xla-tests"
     if cache.is_dir() and sum(f.stat().st_size for f in cache.iterdir() if f.is_file()) > TEST_CACHE_LIMIT_BYTES:

@@ -85,6 +85,11 @@ def expose_cpu_cores_as_devices() -> None:
         add_xla_flag(f"--xla_force_host_platform_device_count={cores}")
 
 
+def user_cache_dir(name: str) -> str:
+    """``~/.cache/dmo_jax/<name>``: where the package keeps what it can rebuild."""
+    return os.path.join(os.path.expanduser("~"), ".cache", "dmo_jax", name)
+
+
 def enable_compilation_cache(min_compile_seconds: float = 0.0) -> str | None:
     """Keep XLA's compiled programs on disk so later runs skip compilation.
 
@@ -95,8 +100,7 @@ def enable_compilation_cache(min_compile_seconds: float = 0.0) -> str | None:
     ``~/.cache/dmo_jax/xla``. Programs that compile in less than ``min_compile_seconds`` are not
     kept. Returns the directory in use, or None.
     """
-    default = os.path.join(os.path.expanduser("~"), ".cache", "dmo_jax", "xla")
-    path = os.environ.get("DMO_JAX_COMPILATION_CACHE", default)
+    path = os.environ.get("DMO_JAX_COMPILATION_CACHE", user_cache_dir("xla"))
     if path.strip().lower() in ("", "off", "0", "none"):
         return None
     import jax

@@ -5,6 +5,9 @@ import os
 import shutil
 from pathlib import Path
 
+from envs.platform import (add_xla_flag, collect_garbage_rarely, enable_compilation_cache, setup,
+                           user_cache_dir)
+
 #: The tests' compilation cache is emptied at the start of a run once it holds more than this.
 TEST_CACHE_LIMIT_BYTES = 512 * 2**20
 
@@ -16,14 +19,12 @@ TEST_CACHE_LIMIT_BYTES = 512 * 2**20
 # 41 MB), so the directory starts afresh past TEST_CACHE_LIMIT_BYTES. pytest-xdist's workers
 # inherit it from the main process; DMO_JAX_COMPILATION_CACHE chooses another one (``off``: none).
 if "DMO_JAX_COMPILATION_CACHE" not in os.environ:
-    cache = Path.home() / ".cache" / "dmo_jax" / "xla-tests"
+    cache = Path(user_cache_dir("xla-tests"))
     if cache.is_dir() and sum(f.stat().st_size for f in cache.iterdir() if f.is_file()) > TEST_CACHE_LIMIT_BYTES:
         shutil.rmtree(cache, ignore_errors=True)
     os.environ["DMO_JAX_COMPILATION_CACHE"] = str(cache)
 
 import pytest  # noqa: E402
-
-from envs.platform import add_xla_flag, collect_garbage_rarely, enable_compilation_cache, setup  # noqa: E402
 
 # The tests run tiny networks on little data, so compiling is most of their time: XLA's CPU
 # back-end without its LLVM optimisations compiles the tiny preset's training in half the time.
